@@ -1,0 +1,248 @@
+"""Recording: one sensor's timestamped MARG signals, optional ground truth, and their validation.
+
+Units inside a Recording are always SI: time in s, angular rate in rad/s, specific force
+in m/s², magnetic field in any consistent unit (µT preferred). Readers and
+:meth:`Recording.from_arrays` convert other units when told the unit, and refuse data
+whose magnitudes betray a unit mix-up (gyr in deg/s, acc in g) with the fix in the message.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from margtrack.frames import STANDARD_GRAVITY_M_S2, Frame, check_frame
+
+Array = NDArray[np.float64]
+
+GYR_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
+ACC_UNITS = {"m/s2": 1.0, "m/s^2": 1.0, "m/s²": 1.0, "g": STANDARD_GRAVITY_M_S2}
+
+# Above this many rad/s on any axis a MEMS gyroscope (ranges up to ±2000 deg/s = 34.9 rad/s)
+# cannot have measured it; the numbers are almost certainly deg/s.
+_GYR_RAD_S_IMPLAUSIBLE = 40.0
+# A recording's median acceleration norm is about 9.8 in m/s²; between these bounds it is in g.
+_ACC_G_LIKELY = (0.5, 2.0)
+
+__all__ = ["Recording", "check_unit_magnitudes", "resample"]
+
+
+def _array(value: ArrayLike, name: str, width: int | None, n: int | None = None) -> Array:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be numeric: {exc}") from None
+    if width is None:
+        if arr.ndim != 1:
+            raise ValueError(f"{name} must have shape (N,), got {arr.shape}")
+    elif arr.ndim != 2 or arr.shape[1] != width:
+        raise ValueError(f"{name} must have shape (N, {width}) with samples as rows, got {arr.shape}")
+    if n is not None and arr.shape[0] != n:
+        raise ValueError(f"{name} has {arr.shape[0]} samples but t has {n}")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        row = int(np.argwhere(bad)[0][0])
+        raise ValueError(
+            f"{name} has a non-finite value (NaN or inf) at sample {row}: {arr[row]}; "
+            "remove or interpolate the gap before building the Recording"
+        )
+    return arr
+
+
+def _check_timestamps(t: Array) -> None:
+    if t.shape[0] == 0:
+        raise ValueError("a Recording needs at least one sample, got 0")
+    steps = np.diff(t)
+    bad = np.flatnonzero(steps <= 0.0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        kind = "duplicate" if steps[bad[0]] == 0.0 else "non-monotonic"
+        raise ValueError(
+            f"{kind} timestamp at sample {i}: t[{i - 1}] = {t[i - 1]!r}, t[{i}] = {t[i]!r}; "
+            "timestamps must be strictly increasing seconds"
+        )
+
+
+def check_unit_magnitudes(gyr_rad_s: Array, acc_m_s2: Array) -> None:
+    """Raise ``ValueError`` if gyr looks like deg/s or acc looks like g (magnitude heuristics)."""
+    if gyr_rad_s.size:
+        peak = np.abs(gyr_rad_s).max()
+        if peak > _GYR_RAD_S_IMPLAUSIBLE:
+            i = int(np.argwhere(np.abs(gyr_rad_s) == peak)[0][0])
+            raise ValueError(
+                f"gyr reaches {peak:.1f} rad/s at sample {i}, more than any MEMS gyroscope "
+                "measures; the data is probably in deg/s: pass gyr_unit='deg/s' to convert "
+                "(or check_units=False if it really is rad/s)"
+            )
+    if acc_m_s2.size:
+        median_norm = float(np.median(np.linalg.norm(acc_m_s2, axis=1)))
+        if _ACC_G_LIKELY[0] < median_norm < _ACC_G_LIKELY[1]:
+            raise ValueError(
+                f"acc has a median norm of {median_norm:.3f}, about 1 g rather than 9.81 m/s²; "
+                "the data is probably in g: pass acc_unit='g' to convert "
+                "(or check_units=False if it really is m/s²)"
+            )
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """One MARG sensor's signals on common timestamps, with optional ground truth.
+
+    Attributes
+    ----------
+    t : (N,) float64, s, strictly increasing.
+    gyr : (N, 3) body angular rate, rad/s.
+    acc : (N, 3) body specific force, m/s² (at rest it points up).
+    mag : (N, 3) body magnetic field (µT preferred) or None.
+    quat_true : (N, 4) true orientation ``[w, x, y, z]`` of the body in ``frame`` or None.
+    movement : (N,) bool mask of samples that count for error metrics, or None (all count).
+    frame : earth frame of ``quat_true`` ("NED" or "ENU").
+    name : a label (trial or sensor name).
+    meta : free-form provenance (source file, original units...).
+
+    Construction validates shapes, finiteness and timestamps and raises ``ValueError``
+    naming the first bad sample. Unit heuristics are applied by :meth:`from_arrays` and
+    the readers, which can also convert units.
+    """
+
+    t: Array
+    gyr: Array
+    acc: Array
+    mag: Array | None = None
+    quat_true: Array | None = None
+    movement: NDArray[np.bool_] | None = None
+    frame: Frame = "ENU"
+    name: str = ""
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        t = _array(self.t, "t", None)
+        _check_timestamps(t)
+        n = t.shape[0]
+        set_ = object.__setattr__
+        set_(self, "t", t)
+        set_(self, "gyr", _array(self.gyr, "gyr", 3, n))
+        set_(self, "acc", _array(self.acc, "acc", 3, n))
+        if self.mag is not None:
+            set_(self, "mag", _array(self.mag, "mag", 3, n))
+        if self.quat_true is not None:
+            q = _array(self.quat_true, "quat_true", 4, n)
+            norms = np.linalg.norm(q, axis=1)
+            bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
+            if bad.size:
+                raise ValueError(
+                    f"quat_true is not a unit quaternion at sample {int(bad[0])} "
+                    f"(norm {norms[bad[0]]:.6f})"
+                )
+            set_(self, "quat_true", q / norms[:, None])
+        if self.movement is not None:
+            m = np.asarray(self.movement)
+            if m.shape != (n,):
+                raise ValueError(f"movement must have shape ({n},), got {m.shape}")
+            set_(self, "movement", m.astype(bool))
+        set_(self, "frame", check_frame(self.frame))
+        set_(self, "meta", dict(self.meta))
+
+    @classmethod
+    def from_arrays(
+        cls,
+        gyr: ArrayLike,
+        acc: ArrayLike,
+        mag: ArrayLike | None = None,
+        *,
+        t: ArrayLike | None = None,
+        rate_hz: float | None = None,
+        gyr_unit: str = "rad/s",
+        acc_unit: str = "m/s2",
+        check_units: bool = True,
+        **fields: Any,
+    ) -> Recording:
+        """Build a Recording from arrays in any supported unit.
+
+        Give either timestamps ``t`` (s) or a constant ``rate_hz``; there is no default
+        rate. ``gyr_unit`` is "rad/s" or "deg/s", ``acc_unit`` "m/s2" or "g"; values are
+        converted to SI. With ``check_units`` (default) data whose magnitudes look like
+        deg/s or g is refused with the fix in the message. Other keyword arguments
+        (``quat_true``, ``movement``, ``frame``, ``name``, ``meta``) go to the constructor.
+        """
+        if gyr_unit not in GYR_UNITS:
+            raise ValueError(f"gyr_unit must be one of {sorted(GYR_UNITS)}, got {gyr_unit!r}")
+        if acc_unit not in ACC_UNITS:
+            raise ValueError(f"acc_unit must be one of {sorted(ACC_UNITS)}, got {acc_unit!r}")
+        gyr_arr = _array(gyr, "gyr", 3) * GYR_UNITS[gyr_unit]
+        acc_arr = _array(acc, "acc", 3) * ACC_UNITS[acc_unit]
+        n = gyr_arr.shape[0]
+        if (t is None) == (rate_hz is None):
+            raise ValueError("give exactly one of t (timestamps in s) or rate_hz; no rate is assumed")
+        if t is None:
+            if not (rate_hz is not None and np.isfinite(rate_hz) and rate_hz > 0):
+                raise ValueError(f"rate_hz must be a finite number > 0, got {rate_hz}")
+            t = np.arange(n) / float(rate_hz)
+        if check_units:
+            check_unit_magnitudes(gyr_arr, acc_arr)
+        return cls(t=t, gyr=gyr_arr, acc=acc_arr, mag=mag, **fields)
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples N."""
+        return int(self.t.shape[0])
+
+    @property
+    def duration_s(self) -> float:
+        """Time from the first to the last sample, s."""
+        return float(self.t[-1] - self.t[0])
+
+    @property
+    def rate_hz(self) -> float:
+        """Median sample rate, Hz (``nan`` for a single sample)."""
+        if self.n_samples < 2:
+            return float("nan")
+        return float(1.0 / np.median(np.diff(self.t)))
+
+    @property
+    def dt(self) -> Array:
+        """Sample intervals (N-1,), s."""
+        return np.diff(self.t)
+
+    def gaps(self, factor: float = 1.5) -> NDArray[np.intp]:
+        """Indices ``i`` where ``t[i] - t[i-1]`` exceeds ``factor`` times the median interval."""
+        if self.n_samples < 3:
+            return np.zeros(0, dtype=np.intp)
+        steps = np.diff(self.t)
+        return np.flatnonzero(steps > factor * np.median(steps)) + 1
+
+    def slice(self, start: int | None = None, stop: int | None = None) -> Recording:
+        """Samples ``start:stop`` as a new Recording (timestamps kept, not shifted)."""
+        s = np.s_[start:stop]
+        return replace(
+            self,
+            t=self.t[s],
+            gyr=self.gyr[s],
+            acc=self.acc[s],
+            mag=None if self.mag is None else self.mag[s],
+            quat_true=None if self.quat_true is None else self.quat_true[s],
+            movement=None if self.movement is None else self.movement[s],
+        )
+
+    def without_mag(self) -> Recording:
+        """The same recording with the magnetometer removed (for 6-D estimation)."""
+        return replace(self, mag=None)
+
+
+def resample(t_src: ArrayLike, values: ArrayLike, t_dst: ArrayLike) -> Array:
+    """Linear interpolation of a slower sensor's samples onto other timestamps (004, Overview).
+
+    ``t_src`` (M,) strictly increasing s, ``values`` (M, K), ``t_dst`` (N,) s. Outside the
+    span of ``t_src`` the nearest sample is held (no extrapolation).
+    """
+    ts = _array(t_src, "t_src", None)
+    _check_timestamps(ts)
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim == 1:
+        v = v[:, None]
+    v = _array(v, "values", v.shape[1], ts.shape[0])
+    td = _array(t_dst, "t_dst", None)
+    return np.stack([np.interp(td, ts, v[:, k]) for k in range(v.shape[1])], axis=1)
