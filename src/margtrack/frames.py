@@ -52,16 +52,16 @@ def up(frame: str) -> NDArray[np.float64]:
     return np.array([0.0, 0.0, -1.0 if check_frame(frame) == "NED" else 1.0])
 
 
-def gravity_reference(frame: str, gravity_m_s2: float = STANDARD_GRAVITY_M_S2) -> NDArray[np.float64]:
+def gravity_reference(
+    frame: str, gravity_m_s2: float = STANDARD_GRAVITY_M_S2
+) -> NDArray[np.float64]:
     """What a level accelerometer at rest reads in ``frame`` (m/s²): ``gravity_m_s2 * up``."""
     if not gravity_m_s2 > 0:
         raise ValueError(f"gravity_m_s2 must be > 0, got {gravity_m_s2}")
     return gravity_m_s2 * up(frame)
 
 
-def mag_reference(
-    frame: str, dip_deg: float = 0.0, field_ut: float = 1.0
-) -> NDArray[np.float64]:
+def mag_reference(frame: str, dip_deg: float = 0.0, field_ut: float = 1.0) -> NDArray[np.float64]:
     """Earth magnetic field vector in ``frame``, pointing north and down by ``dip_deg``.
 
     ``dip_deg`` is the inclination (positive down, in [-90, 90]); ``field_ut`` the field

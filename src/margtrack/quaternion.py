@@ -222,7 +222,8 @@ def to_euler(q: ArrayLike) -> Array:
     locked = np.hypot(r32, r33) < 1e-12
     if np.any(locked):
         # With roll = 0, R = Rz(yaw) Ry(±pi/2) gives yaw from the quaternion directly:
-        # pitch = +pi/2: yaw - roll = 2*atan2(z - x, w + y); pitch = -pi/2: yaw + roll = 2*atan2(z + x, w - y)
+        # pitch = +pi/2: yaw - roll = 2*atan2(z - x, w + y)
+        # pitch = -pi/2: yaw + roll = 2*atan2(z + x, w - y)
         yaw_up = 2.0 * np.arctan2(z - x, w + y)
         yaw_down = 2.0 * np.arctan2(z + x, w - y)
         yaw_locked = np.where(sin_pitch > 0, yaw_up, yaw_down)
@@ -253,7 +254,7 @@ def from_euler(angles: ArrayLike) -> Array:
 
 
 def from_rotvec(rotvec: ArrayLike) -> Array:
-    """Quaternion exponential: rotation vector ``angle * axis`` (..., 3) in rad to unit quaternion."""
+    """Quaternion exponential: rotation vector ``angle * axis`` (..., 3) rad to unit quaternion."""
     r = _vec(rotvec, "rotvec")
     angle = np.linalg.norm(r, axis=-1)
     half = 0.5 * angle
@@ -287,11 +288,13 @@ def from_axis_angle(axis: ArrayLike, angle: ArrayLike) -> Array:
 
 
 def to_axis_angle(q: ArrayLike) -> tuple[Array, Array]:
-    """Unit axis (..., 3) and angle (...) in [0, pi] rad; the axis is ``[1, 0, 0]`` for no rotation."""
+    """Unit axis (..., 3) and angle (...) in [0, pi] rad; axis ``[1, 0, 0]`` for no rotation."""
     r = to_rotvec(q)
     angle = np.linalg.norm(r, axis=-1)
     small = angle < 1e-15
-    axis = np.where(small[..., None], np.array([1.0, 0.0, 0.0]), r / np.where(small, 1.0, angle)[..., None])
+    axis = np.where(
+        small[..., None], np.array([1.0, 0.0, 0.0]), r / np.where(small, 1.0, angle)[..., None]
+    )
     return axis, angle
 
 
@@ -319,13 +322,13 @@ def shortest_arc(u: ArrayLike, v: ArrayLike) -> Array:
         basis = np.eye(3)[np.argmin(np.abs(u), axis=-1)]
         perp = np.cross(u, basis)
         perp /= np.linalg.norm(perp, axis=-1, keepdims=True)
-        half_turn = np.concatenate([np.zeros(dot.shape + (1,)), perp], axis=-1)
+        half_turn = np.concatenate([np.zeros((*dot.shape, 1)), perp], axis=-1)
         q = np.where(anti[..., None], half_turn, q)
     return normalize(q)
 
 
 def slerp(p: ArrayLike, q: ArrayLike, fraction: ArrayLike) -> Array:
-    """Spherical linear interpolation from ``p`` (fraction 0) to ``q`` (fraction 1), shortest path."""
+    """Spherical linear interpolation from ``p`` (fraction 0) to ``q`` (fraction 1), short way."""
     p = _quat(p, "p")
     q = _quat(q, "q")
     f = np.asarray(fraction, dtype=np.float64)[..., None]
@@ -342,9 +345,9 @@ def angle_between(p: ArrayLike, q: ArrayLike) -> Array:
 
 
 def rate(q: ArrayLike, gyr_rad_s: ArrayLike) -> Array:
-    """Time derivative ``q̇ = ½ q ⊗ (0, ω)`` for body-frame angular rate ``ω`` (..., 3) rad/s (004)."""
+    """Time derivative ``q̇ = ½ q ⊗ (0, ω)`` for body angular rate ``ω`` (..., 3) rad/s (004)."""
     w = _vec(gyr_rad_s, "gyr_rad_s")
-    omega = np.concatenate([np.zeros(w.shape[:-1] + (1,)), w], axis=-1)
+    omega = np.concatenate([np.zeros((*w.shape[:-1], 1)), w], axis=-1)
     return 0.5 * multiply(q, omega)
 
 

@@ -39,7 +39,9 @@ def _array(value: ArrayLike, name: str, width: int | None, n: int | None = None)
         if arr.ndim != 1:
             raise ValueError(f"{name} must have shape (N,), got {arr.shape}")
     elif arr.ndim != 2 or arr.shape[1] != width:
-        raise ValueError(f"{name} must have shape (N, {width}) with samples as rows, got {arr.shape}")
+        raise ValueError(
+            f"{name} must have shape (N, {width}) with samples as rows, got {arr.shape}"
+        )
     if n is not None and arr.shape[0] != n:
         raise ValueError(f"{name} has {arr.shape[0]} samples but t has {n}")
     bad = ~np.isfinite(arr)
@@ -176,7 +178,9 @@ class Recording:
         acc_arr = _array(acc, "acc", 3) * ACC_UNITS[acc_unit]
         n = gyr_arr.shape[0]
         if (t is None) == (rate_hz is None):
-            raise ValueError("give exactly one of t (timestamps in s) or rate_hz; no rate is assumed")
+            raise ValueError(
+                "give exactly one of t (timestamps in s) or rate_hz; no rate is assumed"
+            )
         if t is None:
             if not (rate_hz is not None and np.isfinite(rate_hz) and rate_hz > 0):
                 raise ValueError(f"rate_hz must be a finite number > 0, got {rate_hz}")

@@ -1,0 +1,51 @@
+"""Plain gyroscope integration: the baseline every filter must beat.
+
+No correction at all: the orientation drifts with gyro bias and noise. It starts from
+``q0`` or from the first accelerometer/magnetometer sample (TRIAD), then integrates
+``q_i = q_{i-1} ⊗ exp(ω_i dt_i / 2)`` exactly for piecewise-constant rates (the closed
+form of ``q̇ = ½ q ⊗ (0, ω)``, 004 "Gyroscope Equations").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from margtrack.estimators.base import Estimator, Params, State
+from margtrack.kernels.gyro import integrate_gyro
+
+__all__ = ["GyroIntegration", "GyroParams"]
+
+
+@dataclass(frozen=True)
+class GyroParams(Params):
+    """Gyro integration has no parameter beyond the output ``frame``."""
+
+
+class GyroIntegration(Estimator[GyroParams, State]):
+    """Orientation by integrating the gyroscope alone (``--method gyro``).
+
+    The magnetometer, when given, is used only to set the initial heading.
+    """
+
+    name = "gyro"
+    params_type = GyroParams
+
+    def _new_state(self, quat0: NDArray[np.float64]) -> State:
+        return State(quat=np.array(quat0, dtype=np.float64))
+
+    def _process(
+        self,
+        state: State,
+        gyr: NDArray[np.float64] | None,
+        acc: NDArray[np.float64],
+        mag: NDArray[np.float64] | None,
+        dt: NDArray[np.float64],
+    ) -> tuple[NDArray[np.float64], dict[str, NDArray[Any]]]:
+        assert gyr is not None  # guaranteed by uses_gyr; narrows the type
+        out = np.empty((gyr.shape[0], gyr.shape[1], 4))
+        integrate_gyro(state.quat, gyr, dt, out)
+        return out, {}
