@@ -30,9 +30,11 @@ _ACC_G_LIKELY = (0.5, 2.0)
 __all__ = ["Recording", "check_unit_magnitudes", "resample"]
 
 
-def _array(value: ArrayLike, name: str, width: int | None, n: int | None = None) -> Array:
+def _array(
+    value: ArrayLike, name: str, width: int | None, n: int | None = None, n_name: str = "t"
+) -> Array:
     try:
-        arr = np.asarray(value, dtype=np.float64)
+        arr = np.array(value, dtype=np.float64)  # a copy: the caller keeps its own array
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name} must be numeric: {exc}") from None
     if width is None:
@@ -43,7 +45,7 @@ def _array(value: ArrayLike, name: str, width: int | None, n: int | None = None)
             f"{name} must have shape (N, {width}) with samples as rows, got {arr.shape}"
         )
     if n is not None and arr.shape[0] != n:
-        raise ValueError(f"{name} has {arr.shape[0]} samples but t has {n}")
+        raise ValueError(f"{name} has {arr.shape[0]} samples but {n_name} has {n}")
     bad = ~np.isfinite(arr)
     if bad.any():
         row = int(np.argwhere(bad)[0][0])
@@ -63,7 +65,8 @@ def _check_timestamps(t: Array) -> None:
         i = int(bad[0]) + 1
         kind = "duplicate" if steps[bad[0]] == 0.0 else "non-monotonic"
         raise ValueError(
-            f"{kind} timestamp at sample {i}: t[{i - 1}] = {t[i - 1]!r}, t[{i}] = {t[i]!r}; "
+            f"{kind} timestamp at sample {i}: t[{i - 1}] = {float(t[i - 1])!r}, "
+            f"t[{i}] = {float(t[i])!r}; "
             "timestamps must be strictly increasing seconds"
         )
 
@@ -139,14 +142,29 @@ class Recording:
                     f"quat_true is not a unit quaternion at sample {int(bad[0])} "
                     f"(norm {norms[bad[0]]:.6f})"
                 )
-            set_(self, "quat_true", q / norms[:, None])
+            # rescale only rows that need it, so building a Recording from a Recording's
+            # arrays (readers, slice) reproduces them bit for bit
+            off = np.abs(norms - 1.0) > 1e-12
+            q[off] /= norms[off, None]
+            set_(self, "quat_true", q)
         if self.movement is not None:
-            m = np.asarray(self.movement)
+            m = np.array(self.movement)
             if m.shape != (n,):
                 raise ValueError(f"movement must have shape ({n},), got {m.shape}")
+            if m.dtype != bool:
+                bad = np.flatnonzero(~np.isin(m, (0, 1)))
+                if bad.size:
+                    raise ValueError(
+                        f"movement must be boolean (or 0/1), got {m[bad[0]]!r} at sample "
+                        f"{int(bad[0])}"
+                    )
             set_(self, "movement", m.astype(bool))
         set_(self, "frame", check_frame(self.frame))
         set_(self, "meta", dict(self.meta))
+        for name in ("t", "gyr", "acc", "mag", "quat_true", "movement"):
+            value = getattr(self, name)
+            if value is not None:
+                value.flags.writeable = False
 
     @classmethod
     def from_arrays(
@@ -247,6 +265,6 @@ def resample(t_src: ArrayLike, values: ArrayLike, t_dst: ArrayLike) -> Array:
     v = np.asarray(values, dtype=np.float64)
     if v.ndim == 1:
         v = v[:, None]
-    v = _array(v, "values", v.shape[1], ts.shape[0])
+    v = _array(v, "values", v.shape[1], ts.shape[0], n_name="t_src")
     td = _array(t_dst, "t_dst", None)
     return np.stack([np.interp(td, ts, v[:, k]) for k in range(v.shape[1])], axis=1)

@@ -1,0 +1,327 @@
+"""CSV recordings: margtrack's own self-describing layout, and any CSV through a column mapping.
+
+margtrack CSV (written by :func:`write_csv`, read back exactly by :func:`read_csv`)::
+
+    # margtrack-recording v1 frame=ENU name=<name, rest of the line>
+    # meta=<JSON object>
+    t_s,gyr_x_rad_s,gyr_y_rad_s,gyr_z_rad_s,acc_x_m_s2,acc_y_m_s2,acc_z_m_s2,mag_x,mag_y,mag_z,quat_true_w,quat_true_x,quat_true_y,quat_true_z,movement
+
+The ``mag``, ``quat_true`` and ``movement`` columns are present only when the Recording has
+them. Floats are written with ``repr`` (the shortest string that parses back to the same
+float64), so a write/read round trip is exact; ``movement`` is written as 0/1.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import warnings
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from margtrack.frames import check_frame
+from margtrack.io.hdf5 import _existing_file, _naming_path, _writable, meta_to_json
+from margtrack.recording import Recording
+
+__all__ = ["read_csv", "write_csv", "write_estimate_csv"]
+
+MAGIC = "# margtrack-recording"
+_FIRST_LINE = re.compile(r"^# margtrack-recording v(\d+) frame=(\S+) name=(.*)$")
+_FIELD_COLUMNS = {
+    "t": ["t_s"],
+    "gyr": ["gyr_x_rad_s", "gyr_y_rad_s", "gyr_z_rad_s"],
+    "acc": ["acc_x_m_s2", "acc_y_m_s2", "acc_z_m_s2"],
+    "mag": ["mag_x", "mag_y", "mag_z"],
+    "quat_true": ["quat_true_w", "quat_true_x", "quat_true_y", "quat_true_z"],
+    "movement": ["movement"],
+}
+_FIELD_WIDTHS = {"t": 1, "gyr": 3, "acc": 3, "mag": 3, "quat_true": 4, "movement": 1}
+# Divide raw timestamps by these to get seconds (division by a power of ten is correctly rounded).
+TIME_UNITS = {"s": 1.0, "ms": 1e3, "us": 1e6, "µs": 1e6, "ns": 1e9}
+
+
+def _header(path: Path) -> tuple[list[str], list[str], int]:
+    """Leading ``#`` comment lines, the column names, and the number of lines before the data."""
+    comments: list[str] = []
+    with path.open(encoding="utf-8-sig") as f:  # -sig: tolerate a byte-order mark
+        for i, line in enumerate(f):
+            line = line.rstrip("\r\n")
+            if line.startswith("#"):
+                comments.append(line)
+            elif line.strip():
+                names = [c.strip().strip('"').strip() for c in line.split(",")]
+                return comments, names, i + 1
+    raise ValueError(f"{path}: no header line with column names")
+
+
+def _load(
+    path: Path, names: list[str], header: list[str], skip: int, hint: str = ""
+) -> NDArray[np.float64]:
+    """Columns ``names`` (in that order) of the data rows as an (N, len(names)) float64 array."""
+    missing = [n for n in names if n not in header]
+    if missing:
+        raise ValueError(f"{path}: no column {missing[0]!r}; the file has columns {header}{hint}")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # an empty file is reported below
+        try:
+            data = np.loadtxt(
+                path, delimiter=",", skiprows=skip, ndmin=2, dtype=np.float64,
+                usecols=[header.index(n) for n in names], comments="#",
+            )
+        except ValueError as exc:
+            raise ValueError(f"{path}: non-numeric data in columns {names}: {exc}") from None
+    if data.shape[0] == 0:
+        raise ValueError(f"{path}: the file has a header but no data rows")
+    return data
+
+
+def _load_fields(
+    path: Path, fields: Mapping[str, list[str]], header: list[str], skip: int, hint: str = ""
+) -> dict[str, NDArray[np.float64]]:
+    """Read the columns of several fields in one pass; 1-column fields come back as (N,)."""
+    names = [c for cols in fields.values() for c in cols]
+    data = _load(path, names, header, skip, hint)
+    out: dict[str, NDArray[np.float64]] = {}
+    start = 0
+    for field, cols in fields.items():
+        block = data[:, start:start + len(cols)]
+        out[field] = block[:, 0].copy() if len(cols) == 1 else block.copy()
+        start += len(cols)
+    return out
+
+
+def _movement(values: NDArray[np.float64], column: str) -> NDArray[np.bool_]:
+    bad = np.flatnonzero((values != 0.0) & (values != 1.0))
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(
+            f"column {column!r} has value {float(values[i])!r} at sample {i}; "
+            "movement must be 0 or 1"
+        )
+    return values == 1.0
+
+
+def is_margtrack_csv(path: str | Path) -> bool:
+    """True if the first line of the file at ``path`` is margtrack's CSV signature."""
+    with Path(path).open(encoding="utf-8", errors="replace") as f:
+        return f.readline().startswith(MAGIC)
+
+
+def write_csv(rec: Recording, path: str | Path) -> None:
+    """Write ``rec`` as margtrack CSV (SI units in the column names, exact floats).
+
+    Parameters
+    ----------
+    rec : the Recording; all its fields, including ``frame``, ``name`` and ``meta``, are kept.
+    path : file to create or overwrite; its folder must exist.
+    """
+    p = _writable(path)
+    if "\n" in rec.name or "\r" in rec.name:
+        raise ValueError(f"name {rec.name!r} contains a line break, which CSV cannot keep")
+    blocks: list[NDArray[np.float64]] = [rec.t[:, None], rec.gyr, rec.acc]
+    names = [*_FIELD_COLUMNS["t"], *_FIELD_COLUMNS["gyr"], *_FIELD_COLUMNS["acc"]]
+    for field in ("mag", "quat_true"):
+        value = getattr(rec, field)
+        if value is not None:
+            blocks.append(value)
+            names += _FIELD_COLUMNS[field]
+    lines = [
+        f"{MAGIC} v1 frame={rec.frame} name={rec.name}",
+        f"# meta={meta_to_json(rec.meta)}",
+        ",".join(names + (["movement"] if rec.movement is not None else [])),
+    ]
+    rows = [",".join(map(repr, row)) for row in np.hstack(blocks).tolist()]
+    if rec.movement is not None:
+        rows = [f"{row},{int(m)}" for row, m in zip(rows, rec.movement.tolist(), strict=True)]
+    p.write_text("\n".join(lines + rows) + "\n", encoding="utf-8")
+
+
+def _read_margtrack(path: Path, comments: list[str], header: list[str], skip: int) -> Recording:
+    match = _FIRST_LINE.match(comments[0])
+    if match is None:
+        raise ValueError(f"{path}: malformed first line {comments[0]!r}")
+    if match.group(1) != "1":
+        raise ValueError(f"{path}: margtrack CSV version {match.group(1)} is not supported (1 is)")
+    meta: dict[str, Any] = {}
+    for line in comments[1:]:
+        if line.startswith("# meta="):
+            meta = json.loads(line[len("# meta="):])
+    known = [c for cols in _FIELD_COLUMNS.values() for c in cols]
+    extra = [c for c in header if c not in known]
+    if extra:
+        raise ValueError(
+            f"{path}: unexpected columns {extra} in a margtrack CSV; "
+            "read it with read_csv(path, columns={...}) to choose columns"
+        )
+    wanted = {
+        field: cols for field, cols in _FIELD_COLUMNS.items()
+        if field in ("t", "gyr", "acc") or any(c in header for c in cols)
+    }
+    fields: dict[str, Any] = _load_fields(path, wanted, header, skip)
+    if "movement" in fields:
+        with _naming_path(path):
+            fields["movement"] = _movement(fields["movement"], "movement")
+    with _naming_path(path):
+        return Recording(frame=match.group(2), name=match.group(3), meta=meta, **fields)
+
+
+def read_csv(
+    path: str | Path,
+    columns: Mapping[str, Sequence[str] | str] | None = None,
+    gyr_unit: str = "rad/s",
+    acc_unit: str = "m/s2",
+    time_unit: str = "s",
+    rate_hz: float | None = None,
+    frame: str | None = None,
+    check_units: bool = True,
+) -> Recording:
+    """Read a Recording from margtrack CSV, or from any comma-separated file via ``columns``.
+
+    Parameters
+    ----------
+    path : the CSV file. Lines starting with ``#`` before the header are comments.
+    columns : None for margtrack CSV (its header fixes columns, SI units, frame, name and meta).
+        Otherwise a mapping from field to column names in the file: ``"gyr"`` and ``"acc"``
+        (3 each, x y z) are required; ``"t"`` (1), ``"mag"`` (3), ``"quat_true"`` (4,
+        ``w x y z``) and ``"movement"`` (1, values 0/1) are optional.
+    gyr_unit : "rad/s" or "deg/s", the unit of the gyr columns (converted to rad/s).
+    acc_unit : "m/s2" or "g", the unit of the acc columns (converted to m/s²).
+    time_unit : "s", "ms", "us" or "ns", the unit of the time column (converted to s).
+    rate_hz : the sampling rate, Hz, required when no time column is mapped (never assumed);
+        giving both a time column and ``rate_hz`` is an error.
+    frame : earth frame of ``quat_true``; None means the file's frame for margtrack CSV and
+        "ENU" otherwise.
+    check_units : refuse gyr that looks like deg/s and acc that looks like g (mapped files;
+        margtrack CSV is SI by construction).
+
+    Returns
+    -------
+    Recording named after the file stem (mapped files), with ``meta["source"]`` the path.
+    """
+    p = _existing_file(path)
+    comments, header, skip = _header(p)
+    if columns is None:
+        if not (comments and comments[0].startswith(MAGIC)):
+            raise ValueError(
+                f"{p} is not a margtrack CSV (its first line is not '{MAGIC} ...'); pass a "
+                "column mapping, e.g. read_csv(path, columns={'t': ['time'], "
+                "'gyr': ['gx', 'gy', 'gz'], 'acc': ['ax', 'ay', 'az']}, gyr_unit=..., acc_unit=...)"
+                f"; its columns are {header}"
+            )
+        given = {"gyr_unit": (gyr_unit, "rad/s"), "acc_unit": (acc_unit, "m/s2"),
+                 "time_unit": (time_unit, "s"), "rate_hz": (rate_hz, None)}
+        for arg, (value, default) in given.items():
+            if value != default:
+                raise ValueError(
+                    f"{p} is a margtrack CSV, which is SI with timestamps; {arg}={value!r} "
+                    "does not apply: leave it out, or pass columns= to map the file yourself"
+                )
+        rec = _read_margtrack(p, comments, header, skip)
+        if frame is not None and check_frame(frame) != rec.frame:
+            raise ValueError(f"{p} has frame {rec.frame}, not {frame!r}; leave frame=None")
+        return rec
+    return _read_mapped(p, header, skip, columns, gyr_unit, acc_unit, time_unit, rate_hz,
+                        "ENU" if frame is None else frame, check_units)
+
+
+def _read_mapped(
+    path: Path, header: list[str], skip: int, columns: Mapping[str, Sequence[str] | str],
+    gyr_unit: str, acc_unit: str, time_unit: str, rate_hz: float | None, frame: str,
+    check_units: bool,
+) -> Recording:
+    unknown = sorted(set(columns) - set(_FIELD_WIDTHS))
+    if unknown:
+        raise ValueError(f"columns has unknown fields {unknown}; use {sorted(_FIELD_WIDTHS)}")
+    for required in ("gyr", "acc"):
+        if required not in columns:
+            raise ValueError(f"columns must map {required!r} to 3 column names (x, y, z)")
+    if time_unit not in TIME_UNITS:
+        raise ValueError(f"time_unit must be one of {sorted(TIME_UNITS)}, got {time_unit!r}")
+    if "t" in columns and rate_hz is not None:
+        raise ValueError("give either a time column (columns['t']) or rate_hz, not both")
+    if "t" not in columns and rate_hz is None:
+        raise ValueError(
+            f"{path}: no time column mapped; pass columns={{'t': [<time column>], ...}} "
+            "or rate_hz=<sampling rate in Hz> (no rate is assumed)"
+        )
+    mapping = {k: [v] if isinstance(v, str) else list(v) for k, v in columns.items()}
+    for field, names in mapping.items():
+        if len(names) != _FIELD_WIDTHS[field]:
+            raise ValueError(
+                f"columns[{field!r}] must name {_FIELD_WIDTHS[field]} column(s), got {names}"
+            )
+    data = _load_fields(path, mapping, header, skip, "; fix the mapping passed as columns=")
+    extra: dict[str, Any] = {}
+    if "quat_true" in data:
+        extra["quat_true"] = data["quat_true"]
+    with _naming_path(path):
+        if "movement" in data:
+            extra["movement"] = _movement(data["movement"], mapping["movement"][0])
+        t = data["t"] / TIME_UNITS[time_unit] if "t" in data else None
+        meta = {
+            "source": str(path),
+            "columns": mapping,
+            "units": {"gyr": gyr_unit, "acc": acc_unit, "t": time_unit},
+        }
+        if rate_hz is not None:
+            meta["rate_hz"] = float(rate_hz)
+        return Recording.from_arrays(
+            data["gyr"], data["acc"], data.get("mag"), t=t, rate_hz=rate_hz,
+            gyr_unit=gyr_unit, acc_unit=acc_unit, check_units=check_units,
+            frame=frame, name=path.stem, meta=meta, **extra,
+        )
+
+
+def _output_columns(name: str, value: NDArray[Any], n: int) -> tuple[list[str], NDArray[Any]]:
+    if value.shape[:1] != (n,):
+        raise ValueError(f"output {name!r} has shape {value.shape}; its first axis must be N={n}")
+    if "," in name or "\n" in name or not name:
+        raise ValueError(f"output name {name!r} must be non-empty without commas or line breaks")
+    if value.ndim == 1:
+        return [name], value[:, None]
+    flat = value.reshape(n, -1)
+    k = flat.shape[1]
+    suffixes = ["x", "y", "z"] if value.ndim == 2 and k == 3 else [str(j) for j in range(k)]
+    return [f"{name}_{s}" for s in suffixes], flat
+
+
+def write_estimate_csv(
+    path: str | Path, t: ArrayLike, quat: ArrayLike, outputs: Mapping[str, ArrayLike] | None = None
+) -> None:
+    """Write an orientation estimate as CSV: ``t_s,quat_w,quat_x,quat_y,quat_z,<outputs>``.
+
+    Parameters
+    ----------
+    path : file to create or overwrite.
+    t : (N,) timestamps, s.
+    quat : (N, 4) orientation ``[w, x, y, z]`` of the body in the estimator's earth frame.
+    outputs : other per-sample series, name (with its unit, e.g. ``"bias_rad_s"``) to array
+        with first axis N. (N,) gives one column ``name``; (N, 3) gives ``name_x/_y/_z``;
+        any other shape is flattened row-major per sample to ``name_0 .. name_{k-1}``.
+        Booleans are written as 1.0 and 0.0.
+    """
+    t_arr = np.asarray(t, dtype=np.float64)
+    q_arr = np.asarray(quat, dtype=np.float64)
+    if t_arr.ndim != 1:
+        raise ValueError(f"t must have shape (N,), got {t_arr.shape}")
+    n = t_arr.shape[0]
+    if q_arr.shape != (n, 4):
+        raise ValueError(f"quat must have shape ({n}, 4) to match t, got {q_arr.shape}")
+    names = ["t_s", "quat_w", "quat_x", "quat_y", "quat_z"]
+    blocks: list[NDArray[Any]] = [t_arr[:, None], q_arr]
+    for name, value in (outputs or {}).items():
+        arr = np.asarray(value)
+        if arr.dtype == bool:
+            arr = arr.astype(np.int64)
+        cols, flat = _output_columns(name, arr.astype(np.float64), n)
+        names += cols
+        blocks.append(flat)
+    duplicated = sorted({c for c in names if names.count(c) > 1})
+    if duplicated:
+        raise ValueError(f"output columns {duplicated} clash; rename the outputs")
+    rows = [",".join(map(repr, row)) for row in np.hstack(blocks).tolist()]
+    _writable(path).write_text("\n".join([",".join(names), *rows]) + "\n", encoding="utf-8")
