@@ -395,7 +395,8 @@ class Estimator(ABC, Generic[P, S]):
         if np.any(steps <= 0):
             i = int(np.flatnonzero(steps <= 0)[0]) + 1
             raise ValueError(
-                f"timestamps must increase strictly: t[{i - 1}] = {t[i - 1]!r}, t[{i}] = {t[i]!r}"
+                f"timestamps must increase strictly: t[{i - 1}] = {float(t[i - 1])!r}, "
+                f"t[{i}] = {float(t[i])!r}"
             )
         return _Inputs(t=t, gyr=gyr_a, acc=acc_a, mag=mag_a)
 
@@ -428,7 +429,7 @@ class Estimator(ABC, Generic[P, S]):
             dt[0] = x.t[0] - state.t_last_s
             if not dt[0] > 0:
                 raise ValueError(
-                    f"the first timestamp {x.t[0]!r} is not after the last processed one "
+                    f"the first timestamp {float(x.t[0])!r} is not after the last processed one "
                     f"{state.t_last_s!r}; timestamps must increase across runs"
                 )
         else:
