@@ -11,7 +11,6 @@ from margtrack.estimators.base import initial_orientation
 from margtrack.filters.gyro import GyroIntegration
 from margtrack.recording import Recording
 
-
 pytestmark = pytest.mark.kernel
 
 def _signals(n: int = 400, seed: int = 3):

@@ -10,7 +10,6 @@ from margtrack import frames
 from margtrack import quaternion as quat
 from margtrack.estimators.triad import Triad
 
-
 pytestmark = pytest.mark.kernel
 
 def _measure(q_true, frame, dip_deg=65.0, g=9.81, field=48.0):

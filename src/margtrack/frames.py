@@ -56,8 +56,8 @@ def gravity_reference(
     frame: str, gravity_m_s2: float = STANDARD_GRAVITY_M_S2
 ) -> NDArray[np.float64]:
     """What a level accelerometer at rest reads in ``frame`` (m/s²): ``gravity_m_s2 * up``."""
-    if not gravity_m_s2 > 0:
-        raise ValueError(f"gravity_m_s2 must be > 0, got {gravity_m_s2}")
+    if not (np.isfinite(gravity_m_s2) and gravity_m_s2 > 0):
+        raise ValueError(f"gravity_m_s2 must be a finite number > 0, got {gravity_m_s2}")
     return gravity_m_s2 * up(frame)
 
 
@@ -70,8 +70,8 @@ def mag_reference(frame: str, dip_deg: float = 0.0, field_ut: float = 1.0) -> ND
     """
     if not -90.0 <= dip_deg <= 90.0:
         raise ValueError(f"dip_deg must be in [-90, 90], got {dip_deg}")
-    if not field_ut > 0:
-        raise ValueError(f"field_ut must be > 0, got {field_ut}")
+    if not (np.isfinite(field_ut) and field_ut > 0):
+        raise ValueError(f"field_ut must be a finite number > 0, got {field_ut}")
     c, s = np.cos(np.radians(dip_deg)), np.sin(np.radians(dip_deg))
     if check_frame(frame) == "NED":
         return field_ut * np.array([c, 0.0, s])
@@ -88,6 +88,8 @@ def convert(q: ArrayLike, from_frame: str, to_frame: str) -> NDArray[np.float64]
     src = check_frame(from_frame)
     dst = check_frame(to_frame)
     q = np.asarray(q, dtype=np.float64)
+    if q.ndim == 0 or q.shape[-1] != 4:
+        raise ValueError(f"q must have shape (..., 4) in [w, x, y, z] order, got {q.shape}")
     if src == dst:
         return q.copy()
     return quat.multiply(_ENU_TO_NED, q)

@@ -211,26 +211,29 @@ def to_euler(q: ArrayLike) -> Array:
     """
     q = normalize(q)
     w, x, y, z = np.moveaxis(q, -1, 0)
-    sin_pitch = 2.0 * (w * y - x * z)
-    r32 = 2.0 * (w * x + y * z)
-    r33 = 1.0 - 2.0 * (x * x + y * y)
-    # atan2 against cos(pitch) = hypot(R32, R33) keeps full precision near +-90 deg,
-    # where asin(sin_pitch) would lose half the digits.
-    pitch = np.arctan2(sin_pitch, np.hypot(r32, r33))
-    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    roll = np.arctan2(r32, r33)
-    locked = np.hypot(r32, r33) < 1e-12
-    if np.any(locked):
-        # With roll = 0, R = Rz(yaw) Ry(±pi/2) gives yaw from the quaternion directly:
-        # pitch = +pi/2: yaw - roll = 2*atan2(z - x, w + y)
-        # pitch = -pi/2: yaw + roll = 2*atan2(z + x, w - y)
-        yaw_up = 2.0 * np.arctan2(z - x, w + y)
-        yaw_down = 2.0 * np.arctan2(z + x, w - y)
-        yaw_locked = np.where(sin_pitch > 0, yaw_up, yaw_down)
-        yaw_locked = np.angle(np.exp(1j * yaw_locked))
-        yaw = np.where(locked, yaw_locked, yaw)
-        roll = np.where(locked, 0.0, roll)
-    return np.stack([yaw, pitch, roll], axis=-1)
+    # With c, s = cos(pitch/2), sin(pitch/2) and q = q_z(yaw) ⊗ q_y(pitch) ⊗ q_x(roll):
+    #   w + y = (c + s) cos((yaw - roll)/2),  z - x = (c + s) sin((yaw - roll)/2),
+    #   w - y = (c - s) cos((yaw + roll)/2),  z + x = (c - s) sin((yaw + roll)/2).
+    # These half-angle sums keep full precision up to and at gimbal lock, where the usual
+    # atan2 of matrix entries divides two vanishing numbers.
+    a_plus = np.hypot(w + y, z - x)  # sqrt(2) sin(pitch/2 + pi/4)
+    a_minus = np.hypot(w - y, z + x)  # sqrt(2) cos(pitch/2 + pi/4)
+    pitch = 2.0 * np.arctan2(a_plus, a_minus) - 0.5 * np.pi
+    diff = 2.0 * np.arctan2(z - x, w + y)  # yaw - roll
+    total = 2.0 * np.arctan2(z + x, w - y)  # yaw + roll
+    yaw = 0.5 * (total + diff)
+    roll = 0.5 * (total - diff)
+    locked = a_plus * a_minus < 1e-12  # = cos(pitch)
+    yaw = np.where(locked, np.where(a_minus < a_plus, diff, total), yaw)
+    roll = np.where(locked, 0.0, roll)
+    return np.stack([_wrap(_wrap(yaw)), pitch, _wrap(roll)], axis=-1)
+
+
+def _wrap(angle: Array) -> Array:
+    """Angles into (-pi, pi] (one turn of correction)."""
+    return np.where(
+        angle <= -np.pi, angle + 2 * np.pi, np.where(angle > np.pi, angle - 2 * np.pi, angle)
+    )
 
 
 def from_euler(angles: ArrayLike) -> Array:
@@ -315,15 +318,20 @@ def shortest_arc(u: ArrayLike, v: ArrayLike) -> Array:
     dot = np.sum(u * v, axis=-1)
     # w = s/2 and xyz = u×v/s with s = sqrt(2(1 + u·v)) is 004's form; scaling by s gives
     # [1 + u·v, u×v], whose normalisation stays accurate until u·v reaches -1.
-    q = np.concatenate([(1.0 + dot)[..., None], np.cross(u, v)], axis=-1)
-    anti = dot < -1.0 + 1e-12
-    if np.any(anti):
-        # any axis perpendicular to u: cross with the basis vector least aligned with u
-        basis = np.eye(3)[np.argmin(np.abs(u), axis=-1)]
-        perp = np.cross(u, basis)
-        perp /= np.linalg.norm(perp, axis=-1, keepdims=True)
-        half_turn = np.concatenate([np.zeros((*dot.shape, 1)), perp], axis=-1)
-        q = np.where(anti[..., None], half_turn, q)
+    cross = np.cross(u, v)
+    q = np.concatenate([(1.0 + dot)[..., None], cross], axis=-1)
+    obtuse = dot < 0.0
+    if np.any(obtuse):
+        # [1 + u·v, u×v] loses digits as u·v -> -1; the same quaternion scaled by
+        # (1 - u·v)/|u×v| is [|u×v|, (1 - u·v) axis], with the axis made exactly
+        # perpendicular to u (any perpendicular axis when u×v vanishes: antiparallel).
+        perp = cross - np.sum(cross * u, axis=-1, keepdims=True) * u
+        n = np.linalg.norm(perp, axis=-1, keepdims=True)
+        fallback = np.cross(u, np.eye(3)[np.argmin(np.abs(u), axis=-1)])
+        axis = np.where(n > 0.0, perp, fallback)
+        axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
+        q_obtuse = np.concatenate([n, (1.0 - dot)[..., None] * axis], axis=-1)
+        q = np.where(obtuse[..., None], q_obtuse, q)
     return normalize(q)
 
 

@@ -1,0 +1,126 @@
+"""The margtrack command end to end: simulate, info, run, evaluate, errors."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+from typer.testing import CliRunner
+
+from margtrack import io, methods
+from margtrack.cli import app
+
+runner = CliRunner()
+
+
+def _ok(args):
+    result = runner.invoke(app, [str(a) for a in args])
+    assert result.exit_code == 0, result.output
+    return result.output
+
+
+def test_methods_lists_the_registry():
+    out = _ok(["methods"])
+    for name in methods.available():
+        assert name in out
+    assert "(default)" in out
+
+
+def test_noise_free_simulation_is_tracked_exactly_by_gyro_integration(tmp_path):
+    rec_path = tmp_path / "sim.h5"
+    _ok(["simulate", "-o", rec_path, "--duration", "20", "--no-noise", "--seed", "4"])
+    out_json = tmp_path / "gyro.json"
+    _ok(["evaluate", rec_path, "--method", "gyro", "--json", out_json])
+    report = json.loads(out_json.read_text())
+    assert report["method"] == "gyro"
+    assert set(report["mean"]) == {"total_rmse_deg", "heading_rmse_deg", "inclination_rmse_deg"}
+    (trial,) = report["trials"].values()
+    assert trial["total_rmse_deg"] < 1e-6
+    assert report["mean"]["total_rmse_deg"] == trial["total_rmse_deg"]
+
+
+def test_noisy_simulation_drifts(tmp_path):
+    rec_path = tmp_path / "noisy.csv"
+    _ok(["simulate", "-o", rec_path, "--duration", "30", "--seed", "1"])
+    out_json = tmp_path / "gyro.json"
+    _ok(["evaluate", rec_path, "--method", "gyro", "--json", out_json])
+    total = json.loads(out_json.read_text())["mean"]["total_rmse_deg"]
+    # MEMS gyro bias of about 0.4 deg/s over 30 s: degrees, not micro-degrees
+    assert 0.5 < total < 30.0
+
+
+def test_run_writes_t_and_quat_equal_to_the_api(tmp_path):
+    rec_path = tmp_path / "sim.h5"
+    _ok(["simulate", "-o", rec_path, "--duration", "5", "--motion", "limb"])
+    out = tmp_path / "est.h5"
+    text = _ok(["run", rec_path, "--method", "triad", "-o", out, "--frame", "NED"])
+    assert "against the truth" in text
+    rec = io.read(rec_path)
+    expected = methods.create("triad").run(rec).in_frame("NED")
+    with h5py.File(out) as f:
+        np.testing.assert_array_equal(f["t"][:], rec.t)
+        np.testing.assert_allclose(f["quat"][:], expected.quat, atol=1e-15)
+        assert f.attrs["frame"] == "NED"
+
+
+def test_info_describes_a_recording(tmp_path):
+    rec_path = tmp_path / "sim.csv"
+    _ok(["simulate", "-o", rec_path, "--duration", "3", "--rate", "200", "--motion", "static"])
+    out = _ok(["info", rec_path])
+    assert "200.000 Hz" in out
+    assert "601" in out
+    assert "quat_true in ENU" in out
+
+
+def test_errors_are_one_line_with_exit_code_2(tmp_path):
+    result = runner.invoke(app, ["info", str(tmp_path / "missing.h5")])
+    assert result.exit_code == 2
+    assert "no such file" in result.output
+    rec_path = tmp_path / "sim.h5"
+    _ok(["simulate", "-o", rec_path, "--duration", "2"])
+    result = runner.invoke(app, ["evaluate", str(rec_path), "--method", "nope"])
+    assert result.exit_code == 2
+    assert "unknown method 'nope'" in result.output
+    result = runner.invoke(app, ["evaluate", str(rec_path), "-m", "gyro", "-p", "gain=2"])
+    assert result.exit_code == 2
+    assert "unknown parameter(s) gain" in result.output
+    result = runner.invoke(app, ["simulate", "-o", str(tmp_path / "x.txt")])
+    assert result.exit_code == 2
+    assert "unsupported extension '.txt'" in result.output
+
+
+def test_evaluate_broad_folder_prints_every_trial_and_the_mean(broad_folder, tmp_path):
+    out_json = tmp_path / "broad.json"
+    text = _ok(["evaluate", broad_folder, "--method", "gyro", "--json", out_json])
+    report = json.loads(out_json.read_text())
+    assert len(report["trials"]) == len(list(broad_folder.glob("*.hdf5")))
+    totals = [t["total_rmse_deg"] for t in report["trials"].values()]
+    assert report["mean"]["total_rmse_deg"] == np.mean(totals)
+    assert "mean (" in text
+    assert "undisturbed" in report["groups"]
+    # unaided gyro integration drifts by degrees to tens of degrees on every trial
+    assert all(1.0 < t < 90.0 for t in totals)
+
+
+def test_run_reads_an_xio_sensor_folder_in_deg_s_and_g(tmp_path):
+    from conftest import DATA
+
+    folder = DATA / "xio_lower_body" / "pelvis"
+    if not folder.is_dir():
+        import pytest
+
+        pytest.skip(f"x-IMU3 data not found at {folder}")
+    out = tmp_path / "pelvis.csv"
+    _ok(["run", folder, "--method", "gyro", "-o", out])
+    data = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert data.shape[1] == 5
+    np.testing.assert_allclose(np.linalg.norm(data[:, 1:], axis=1), 1.0, atol=1e-12)
+
+
+def test_error_text_with_brackets_is_printed_verbatim(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("a,b\n1,2\n")
+    result = runner.invoke(app, ["info", str(bad)])
+    assert result.exit_code == 2
+    assert "columns={'t': [...], 'gyr': [...], 'acc': [...]}" in result.output
