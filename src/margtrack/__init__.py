@@ -1,5 +1,67 @@
+"""margtrack: orientation tracking with MARG sensors.
+
+The public API, re-exported here:
+
+- :mod:`margtrack.quaternion`, :mod:`margtrack.frames`: the conventions as functions;
+- :class:`Recording` and :mod:`margtrack.io`: data in and out;
+- :mod:`margtrack.sim`: simulated recordings with truth;
+- :func:`create` / :func:`available_methods` (:mod:`margtrack.methods`): estimators by name,
+  all following one contract (:class:`Estimator`, :class:`Estimate`);
+- :func:`error_series`, :func:`summarize` (:mod:`margtrack.bench.metrics`): errors in degrees.
+
+Submodules that pull in numba or h5py load on first use, so ``import margtrack`` is quick.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from margtrack import frames, quaternion
 from margtrack.recording import Recording
 
+if TYPE_CHECKING:  # pragma: no cover
+    from margtrack import bench, estimators, filters, io, methods, sim
+    from margtrack.bench.metrics import error_series, summarize
+    from margtrack.estimators.base import Estimate, Estimator
+    from margtrack.methods import available as available_methods
+    from margtrack.methods import create
+
 __version__ = "0.1.0"
-__all__ = ["Recording", "frames", "quaternion"]
+
+_LAZY_MODULES = {"bench", "estimators", "filters", "io", "methods", "sim"}
+_LAZY_NAMES = {
+    "Estimate": ("margtrack.estimators.base", "Estimate"),
+    "Estimator": ("margtrack.estimators.base", "Estimator"),
+    "available_methods": ("margtrack.methods", "available"),
+    "create": ("margtrack.methods", "create"),
+    "error_series": ("margtrack.bench.metrics", "error_series"),
+    "summarize": ("margtrack.bench.metrics", "summarize"),
+}
+
+__all__ = [
+    "Estimate",
+    "Estimator",
+    "Recording",
+    "available_methods",
+    "bench",
+    "create",
+    "error_series",
+    "estimators",
+    "filters",
+    "frames",
+    "io",
+    "methods",
+    "quaternion",
+    "sim",
+    "summarize",
+]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY_MODULES:
+        return importlib.import_module(f"margtrack.{name}")
+    if name in _LAZY_NAMES:
+        module, attr = _LAZY_NAMES[name]
+        return getattr(importlib.import_module(module), attr)
+    raise AttributeError(f"module 'margtrack' has no attribute {name!r}")

@@ -1,1 +1,5 @@
 """Error metrics and benchmark runners (BROAD, speed)."""
+
+from margtrack.bench import metrics
+
+__all__ = ["metrics"]
