@@ -212,6 +212,99 @@ def evaluate(
 
 @app.command()
 @_friendly_errors
+def tune(
+    path: Annotated[Path, typer.Argument(help="A folder of BROAD trials (or one recording).")],
+    method: MethodOption,
+    grid: Annotated[
+        list[str],
+        typer.Option("--grid", "-g", help="Candidates as name=v1,v2,...; repeatable."),
+    ],
+    param: ParamOption = None,
+    top: Annotated[int, typer.Option(help="How many of the best points to show.")] = 5,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Best result as JSON.")] = None,
+) -> None:
+    """Find one parameter set for all trials that minimises the mean total RMSE."""
+    import itertools
+
+    from rich.progress import Progress
+
+    from margtrack import io, methods
+    from margtrack.bench import broad
+    from margtrack.bench import tune as tuning
+
+    candidates = tuning.parse_grid(grid)
+    fixed = dict(methods.parse_params_items(param or ()))
+    n_points = len(list(itertools.product(*candidates.values())))
+    with Progress(transient=True) as bar:
+        loading = bar.add_task("reading recordings", total=None)
+        if path.is_dir() and any(path.glob("*.hdf5")):
+            trials = io.broad_trials(path)
+            recordings = [(io.read_broad(t.path), tuple(t.groups)) for t in trials]
+            order = broad.group_order(path)
+        else:
+            recordings = [(r, ()) for r in io.read_any(path)]
+            order = ()
+        bar.remove_task(loading)
+        task = bar.add_task(f"tuning {method}", total=n_points)
+
+        def progress(point: str) -> None:
+            bar.update(task, description=f"{method}: {point}")
+            bar.advance(task)
+
+        result = tuning.tune(
+            method, candidates, recordings, fixed=fixed, group_order=order, progress=progress
+        )
+    table = Table(title=f"{result.method}: best {min(top, len(result.results))} of {n_points}")
+    table.add_column("parameters")
+    for col in ("total", "heading", "inclination"):
+        table.add_column(col, justify="right")
+    for r in result.results[:top]:
+        m = r.mean()
+        shown = ", ".join(f"{k}={r.params[k]}" for k in candidates)
+        table.add_row(
+            shown,
+            f"{m['total_rmse_deg']:.2f}",
+            f"{m['heading_rmse_deg']:.2f}",
+            f"{m['inclination_rmse_deg']:.2f}",
+        )
+    console.print(table)
+    console.print(broad.format_table(result.best))
+    if json_out is not None:
+        result.best.write_json(json_out)
+        console.print(f"wrote {json_out}")
+
+
+@app.command()
+@_friendly_errors
+def experiment(
+    name: Annotated[str, typer.Argument(help="Experiment name; `list` shows them.")],
+    out_dir: Annotated[Path, typer.Option("--out", help="Folder for the PNG plots.")] = Path(
+        "experiments"
+    ),
+    quick: Annotated[bool, typer.Option(help="A shorter run (fewer samples or cases).")] = False,
+) -> None:
+    """Reproduce an experiment of the source papers: print its figures, write its plot."""
+    from margtrack.bench import experiments
+
+    if name == "list":
+        for item in experiments.available():
+            console.print(item)
+        return
+    result = experiments.run(name, out_dir, quick=quick)
+    table = Table(title=f"experiment {result.name}")
+    table.add_column("figure")
+    table.add_column("value", justify="right")
+    for key, value in result.figures.items():
+        table.add_row(key, f"{value:.6g}" if isinstance(value, float) else str(value))
+    console.print(table)
+    for note in result.notes:
+        console.print(note)
+    for plot in result.plots:
+        console.print(f"plot: {plot}")
+
+
+@app.command()
+@_friendly_errors
 def demo(
     duration_s: Annotated[float, typer.Option("--duration", help="Simulated length in s.")] = 60.0,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,

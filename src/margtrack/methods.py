@@ -16,7 +16,14 @@ from margtrack.estimators.base import Estimator, Params
 from margtrack.estimators.triad import Triad
 from margtrack.filters.gyro import GyroIntegration
 
-__all__ = ["DEFAULT_METHOD", "available", "create", "get", "parse_params"]
+__all__ = [
+    "DEFAULT_METHOD",
+    "available",
+    "create",
+    "get",
+    "parse_params",
+    "parse_params_items",
+]
 
 _CLASSES: tuple[type[Estimator], ...] = (GyroIntegration, Triad)
 _BY_NAME: Mapping[str, type[Estimator]] = types.MappingProxyType({c.name: c for c in _CLASSES})
@@ -70,21 +77,24 @@ def _coerce(value: Any, annotation: Any, name: str) -> Any:
     return value
 
 
+def parse_params_items(items: Iterable[str]) -> dict[str, str]:
+    """``["gain=0.1", "mag-weight=1"]`` to ``{"gain": "0.1", "mag_weight": "1"}``."""
+    pairs = {}
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"parameters are given as name=value, got {item!r}")
+        key, _, value = item.partition("=")
+        pairs[key.strip().replace("-", "_")] = value.strip()
+    return pairs
+
+
 def parse_params(params_type: type[Params], items: Iterable[str] | Mapping[str, Any]) -> Params:
     """Build ``params_type`` from ``name=value`` strings (CLI) or a mapping, coercing types.
 
     Unknown names raise ``ValueError`` listing the valid ones; values are validated by the
     dataclass itself.
     """
-    if isinstance(items, Mapping):
-        pairs = dict(items)
-    else:
-        pairs = {}
-        for item in items:
-            if "=" not in item:
-                raise ValueError(f"parameters are given as name=value, got {item!r}")
-            key, _, value = item.partition("=")
-            pairs[key.strip().replace("-", "_")] = value.strip()
+    pairs = dict(items) if isinstance(items, Mapping) else parse_params_items(items)
     hints = typing.get_type_hints(params_type)
     fields = {f.name for f in dataclasses.fields(params_type)}
     unknown = sorted(set(pairs) - fields)

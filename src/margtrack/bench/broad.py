@@ -28,6 +28,7 @@ __all__ = [
     "evaluate_recording",
     "evaluate_recordings",
     "format_table",
+    "group_order",
 ]
 
 _KEYS = ("total_rmse_deg", "heading_rmse_deg", "inclination_rmse_deg")
@@ -136,7 +137,7 @@ def evaluate_folder(
     from margtrack.io.broad import broad_trials, read_broad
 
     trials = broad_trials(folder)
-    order = _group_order(Path(folder))
+    order = group_order(Path(folder))
 
     def recordings(update: Callable[[], None]):
         for trial in trials:
@@ -163,7 +164,8 @@ def evaluate_folder(
         )
 
 
-def _group_order(folder: Path) -> tuple[str, ...]:
+def group_order(folder: Path) -> tuple[str, ...]:
+    """The group names of a BROAD folder's trials.json in its order (empty without one)."""
     index = folder / "trials.json"
     if not index.is_file():
         return ()
