@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from margtrack.bench.broad import EvaluationResult, evaluate_recordings
+from margtrack.estimators.base import Estimator
 from margtrack.methods import get, parse_params
 from margtrack.recording import Recording
 
@@ -44,7 +45,7 @@ def parse_grid(items: Sequence[str]) -> dict[str, list[str]]:
 
 
 def tune(
-    method: str,
+    method: str | type[Estimator],
     grid: Mapping[str, Sequence[Any]],
     recordings: Sequence[tuple[Recording, tuple[str, ...]]],
     *,
@@ -54,10 +55,12 @@ def tune(
 ) -> TuneResult:
     """Evaluate every combination of ``grid`` (plus ``fixed``) on ``recordings``; best first.
 
+    ``method`` is a registered name or an :class:`Estimator` subclass.
+
     ``grid`` maps parameter names to candidate values (strings are coerced like CLI
     parameters); ``progress`` is told each combination before it runs.
     """
-    cls = get(method)
+    cls = get(method) if isinstance(method, str) else method
     if not grid:
         raise ValueError("the grid is empty: give at least one name=v1,v2,... ")
     names = list(grid)
