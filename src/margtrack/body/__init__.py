@@ -1,0 +1,75 @@
+"""Human body model from segment orientations (000, "Quaternion Based Human Body Model").
+
+- :class:`Skeleton` (:mod:`.skeleton`): up to 15 segments rooted at the pelvis, segment
+  vectors from body height (Winter 2009, Fig. 4.1) or given per segment; presets ``full``,
+  ``lower``, ``left_arm``/``right_arm``, ``left_leg``/``right_leg``.
+- :func:`calibrate` (:mod:`.offsets`): sensor-to-segment offsets from a still reference pose
+  (000, eq. 10), heading from magnetic north or from the pelvis sensor.
+- :func:`segment_orientations`, :func:`positions`, :func:`track` (:mod:`.kinematics`):
+  ``q_segment = q_sensor ⊗ q_offset`` (eq. 7) and joint positions (eq. 11).
+- :func:`joint_angles` (:mod:`.joints`): hip, knee, ankle, shoulder, elbow, X-Y-Z Cardan.
+- Export: :func:`write_bvh`, :func:`write_sto` (OpenSim quaternion table),
+  :func:`write_joint_angles_csv`; :func:`plot_stick_figures` draws frames with matplotlib.
+
+Arrays are frames first, then segments in the skeleton's order: (N, S, 4) quaternions,
+(N, S, 3) positions in metres, in the skeleton's earth frame (ENU default, or NED).
+"""
+
+from __future__ import annotations
+
+from margtrack.body.export_bvh import bvh_axes, write_bvh
+from margtrack.body.export_csv import read_joint_angles_csv, write_joint_angles_csv
+from margtrack.body.export_sto import OPENSENSE_NAMES, opensim_axes, read_sto, write_sto
+from margtrack.body.joints import JOINTS, JointAngles, cardan_xyz, joint_angles
+from margtrack.body.kinematics import (
+    BodyPose,
+    positions,
+    resample_orientations,
+    segment_orientations,
+    track,
+)
+from margtrack.body.offsets import Calibration, average_quaternions, calibrate, still_window
+from margtrack.body.plot import plot_stick_figures
+from margtrack.body.skeleton import (
+    ALIASES,
+    PRESETS,
+    SEGMENT_NAMES,
+    WINTER_FRACTIONS,
+    Segment,
+    Skeleton,
+    body_axes,
+    dimensions_from_height,
+)
+
+__all__ = [
+    "ALIASES",
+    "JOINTS",
+    "OPENSENSE_NAMES",
+    "PRESETS",
+    "SEGMENT_NAMES",
+    "WINTER_FRACTIONS",
+    "BodyPose",
+    "Calibration",
+    "JointAngles",
+    "Segment",
+    "Skeleton",
+    "average_quaternions",
+    "body_axes",
+    "bvh_axes",
+    "calibrate",
+    "cardan_xyz",
+    "dimensions_from_height",
+    "joint_angles",
+    "opensim_axes",
+    "plot_stick_figures",
+    "positions",
+    "read_joint_angles_csv",
+    "read_sto",
+    "resample_orientations",
+    "segment_orientations",
+    "still_window",
+    "track",
+    "write_bvh",
+    "write_joint_angles_csv",
+    "write_sto",
+]

@@ -1,0 +1,384 @@
+"""Skeleton: body segments as a tree rooted at the pelvis, with segment vectors in metres.
+
+Segment frame (000, "Quaternion Based Human Body Model"): in the reference pose (standing
+upright, arms hanging down, facing the heading reference) every segment's axes coincide with
+the earth frame's axes. With the paper's heading reference, magnetic north, that makes the
+segment frame the earth frame itself: NED ``x`` forward (north), ``y`` right (east), ``z``
+down; ENU ``x`` right (east), ``y`` forward (north), ``z`` up. Every vector of a skeleton is
+written in these coordinates, so a skeleton belongs to one earth frame (``frame``).
+
+Each :class:`Segment` carries two vectors (000's translation vector ``p``, generalised to
+a tree):
+
+- ``offset_m``: from the parent's joint to this segment's joint (its inboard end), in the
+  parent's segment frame; zero for the root;
+- ``end_m``: from this segment's joint to its distal end, in its own segment frame (the
+  chain's end for leaves, drawn as a bone, and the BVH "End Site").
+
+For a chain, a child's ``offset_m`` is its parent's ``end_m`` (000: "the outboard end point
+can be used as the origin location for the coordinate system of more distal segments").
+
+Body proportions, :data:`WINTER_FRACTIONS`, are the segment lengths as fractions of body
+height H of Winter, D. A. (2009), *Biomechanics and Motor Control of Human Movement*, 4th ed.,
+Wiley, Fig. 4.1 (after Drillis & Contini, 1966): heights above the floor of the greater
+trochanter 0.530 H, knee 0.285 H, ankle 0.039 H, shoulder 0.818 H; shoulder width 0.259 H,
+hip width 0.191 H, foot length 0.152 H, upper arm 0.186 H, forearm 0.146 H, hand 0.108 H.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from types import MappingProxyType
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from margtrack.frames import Frame, check_frame, mag_reference, up
+
+Array = NDArray[np.float64]
+
+__all__ = [
+    "ALIASES",
+    "PRESETS",
+    "SEGMENT_NAMES",
+    "WINTER_FRACTIONS",
+    "Segment",
+    "Skeleton",
+    "body_axes",
+    "dimensions_from_height",
+]
+
+#: The 15 segments of the full body (000: "approximately fifteen nine-axis units").
+SEGMENT_NAMES: tuple[str, ...] = (
+    "pelvis", "trunk", "head",
+    "left_upper_arm", "left_forearm", "left_hand",
+    "right_upper_arm", "right_forearm", "right_hand",
+    "left_thigh", "left_shank", "left_foot",
+    "right_thigh", "right_shank", "right_foot",
+)
+
+#: Other accepted names of segments (the sensor folders of ../shared/data/xio_lower_body).
+ALIASES: Mapping[str, str] = MappingProxyType({
+    **{f"{side}_upper_leg": f"{side}_thigh" for side in ("left", "right")},
+    **{f"{side}_lower_leg": f"{side}_shank" for side in ("left", "right")},
+    "torso": "trunk",
+})
+
+#: Anatomical parent of each segment.
+_PARENT: Mapping[str, str | None] = MappingProxyType({
+    "pelvis": None, "trunk": "pelvis", "head": "trunk",
+    **{f"{s}_upper_arm": "trunk" for s in ("left", "right")},
+    **{f"{s}_forearm": f"{s}_upper_arm" for s in ("left", "right")},
+    **{f"{s}_hand": f"{s}_forearm" for s in ("left", "right")},
+    **{f"{s}_thigh": "pelvis" for s in ("left", "right")},
+    **{f"{s}_shank": f"{s}_thigh" for s in ("left", "right")},
+    **{f"{s}_foot": f"{s}_shank" for s in ("left", "right")},
+})
+
+#: Presets: segment names in tree order (parents first).
+PRESETS: Mapping[str, tuple[str, ...]] = MappingProxyType({
+    "full": SEGMENT_NAMES,
+    "lower": ("pelvis", "left_thigh", "left_shank", "left_foot",
+              "right_thigh", "right_shank", "right_foot"),
+    **{f"{s}_arm": (f"{s}_upper_arm", f"{s}_forearm", f"{s}_hand") for s in ("left", "right")},
+    **{f"{s}_leg": (f"{s}_thigh", f"{s}_shank", f"{s}_foot") for s in ("left", "right")},
+})
+
+#: Winter (2009) Fig. 4.1: lengths as fractions of body height H.
+WINTER_FRACTIONS: Mapping[str, float] = MappingProxyType({
+    "hip_height": 0.530,  # greater trochanter above the floor
+    "knee_height": 0.285,
+    "ankle_height": 0.039,
+    "shoulder_height": 0.818,
+    "shoulder_width": 0.259,
+    "hip_width": 0.191,
+    "foot_length": 0.152,
+    "upper_arm": 0.186,
+    "forearm": 0.146,
+    "hand": 0.108,
+})
+
+
+def dimensions_from_height(height_m: float) -> dict[str, float]:
+    """Body dimensions in metres from body height (Winter 2009, Fig. 4.1).
+
+    Returns the keys accepted by ``Skeleton.from_height(dimensions_m=...)``: ``thigh``
+    (hip to knee, (0.530 - 0.285) H), ``shank`` (knee to ankle, (0.285 - 0.039) H),
+    ``ankle_height`` (0.039 H), ``foot_length`` (0.152 H), ``hip_width`` (0.191 H),
+    ``trunk`` (hip to shoulder height, (0.818 - 0.530) H, Winter's trunk: greater trochanter
+    to glenohumeral joint), ``head`` (shoulder height to the top of the head,
+    (1 - 0.818) H), ``shoulder_width`` (0.259 H), ``upper_arm`` (0.186 H), ``forearm``
+    (0.146 H), ``hand`` (0.108 H).
+    """
+    h = _positive(height_m, "height_m")
+    if not 0.5 <= h <= 2.8:
+        raise ValueError(f"height_m must be a body height in metres in [0.5, 2.8], got {h}")
+    f = WINTER_FRACTIONS
+    return {
+        "thigh": (f["hip_height"] - f["knee_height"]) * h,
+        "shank": (f["knee_height"] - f["ankle_height"]) * h,
+        "ankle_height": f["ankle_height"] * h,
+        "foot_length": f["foot_length"] * h,
+        "hip_width": f["hip_width"] * h,
+        "trunk": (f["shoulder_height"] - f["hip_height"]) * h,
+        "head": (1.0 - f["shoulder_height"]) * h,
+        "shoulder_width": f["shoulder_width"] * h,
+        "upper_arm": f["upper_arm"] * h,
+        "forearm": f["forearm"] * h,
+        "hand": f["hand"] * h,
+    }
+
+
+def _positive(value: float, name: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    if not (np.isfinite(v) and v > 0.0):
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    return v
+
+
+def body_axes(frame: str) -> tuple[Array, Array, Array]:
+    """Unit vectors ``(right, forward, up)`` of a person in the reference pose facing north.
+
+    In ``frame`` coordinates: NED ``([0,1,0], [1,0,0], [0,0,-1])``, ENU ``([1,0,0], [0,1,0],
+    [0,0,1])``. ``forward`` is north (the horizontal field direction of
+    :func:`margtrack.frames.mag_reference` with zero dip), ``right = forward × up``.
+    These are also the anatomical axes (medio-lateral, antero-posterior, longitudinal) of
+    every segment frame.
+    """
+    forward = mag_reference(frame, 0.0, 1.0)
+    upward = up(frame)
+    return np.cross(forward, upward), forward, upward
+
+
+def canonical_name(name: str) -> str:
+    """The segment name for ``name`` or one of its :data:`ALIASES`; ``ValueError`` if unknown."""
+    key = str(name).strip().lower().replace(" ", "_").replace("-", "_")
+    key = ALIASES.get(key, key)
+    if key not in _PARENT:
+        raise ValueError(
+            f"unknown segment name {name!r}; known segments: {', '.join(SEGMENT_NAMES)} "
+            f"(also accepted: {', '.join(ALIASES)})"
+        )
+    return key
+
+
+def _vector(value: ArrayLike, name: str) -> Array:
+    try:
+        v = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a 3-vector in metres, got {value!r}") from None
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ValueError(f"{name} must be a finite 3-vector in metres, got {value!r}")
+    v.setflags(write=False)
+    return v
+
+
+@dataclass(frozen=True, eq=False)
+class Segment:
+    """One body segment: its name, its parent, and its two vectors (see the module docstring).
+
+    Parameters
+    ----------
+    name : one of :data:`SEGMENT_NAMES` (or an alias, stored canonical).
+    parent : the parent segment's name, ``None`` for the root.
+    offset_m : (3,) m, parent's joint to this joint in the parent's segment frame; zero for
+        the root.
+    end_m : (3,) m, this joint to the segment's distal end, in its own segment frame.
+    """
+
+    name: str
+    parent: str | None
+    offset_m: Array
+    end_m: Array
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "name", canonical_name(self.name))
+        if self.parent is not None:
+            object.__setattr__(self, "parent", canonical_name(self.parent))
+        object.__setattr__(self, "offset_m", _vector(self.offset_m, f"{self.name}.offset_m"))
+        object.__setattr__(self, "end_m", _vector(self.end_m, f"{self.name}.end_m"))
+        if self.parent is None and np.any(self.offset_m != 0.0):
+            raise ValueError(
+                f"root segment {self.name!r} must have offset_m = 0 (its position is "
+                f"Skeleton.root_position_m), got {self.offset_m}"
+            )
+
+
+@dataclass(frozen=True, eq=False)
+class Skeleton:
+    """A tree of segments rooted at one segment, in one earth frame.
+
+    Parameters
+    ----------
+    segments : segments in tree order (each parent before its children), one root.
+    frame : ``"ENU"`` (default) or ``"NED"``: the coordinates of every vector.
+    root_position_m : (3,) m, the root joint's position in the reference pose (floor at 0),
+        used when no root trajectory is given.
+
+    Attributes
+    ----------
+    names : segment names in order; the sensor axis of every (..., S, 4) array follows it.
+    parents : (S,) int, index of each segment's parent, -1 for the root.
+    """
+
+    segments: tuple[Segment, ...]
+    frame: Frame = "ENU"
+    root_position_m: Array = field(default_factory=lambda: np.zeros(3))
+    names: tuple[str, ...] = field(init=False)
+    parents: NDArray[np.intp] = field(init=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "frame", check_frame(self.frame))
+        segments = tuple(self.segments)
+        if not segments or not all(isinstance(s, Segment) for s in segments):
+            raise ValueError("segments must be a non-empty sequence of Segment")
+        object.__setattr__(self, "segments", segments)
+        names = tuple(s.name for s in segments)
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"segment names must be unique; repeated: {', '.join(dup)}")
+        roots = [s.name for s in segments if s.parent is None]
+        if len(roots) != 1 or segments[0].parent is not None:
+            raise ValueError(
+                f"a skeleton needs exactly one root segment (parent None), listed first; "
+                f"got roots {roots}"
+            )
+        parents = np.full(len(segments), -1, dtype=np.intp)
+        for i, s in enumerate(segments[1:], start=1):
+            if s.parent not in names[:i]:
+                raise ValueError(
+                    f"segment {s.name!r} has parent {s.parent!r}, which is not listed before it; "
+                    "list segments parents first"
+                )
+            parents[i] = names.index(s.parent)
+        parents.setflags(write=False)
+        object.__setattr__(self, "names", names)
+        object.__setattr__(self, "parents", parents)
+        object.__setattr__(
+            self, "root_position_m", _vector(self.root_position_m, "root_position_m")
+        )
+
+    def __len__(self) -> int:
+        return len(self.segments)
+
+    @property
+    def root(self) -> str:
+        """Name of the root segment."""
+        return self.names[0]
+
+    @property
+    def offsets_m(self) -> Array:
+        """(S, 3) m: every segment's ``offset_m``."""
+        return np.stack([s.offset_m for s in self.segments])
+
+    @property
+    def ends_m(self) -> Array:
+        """(S, 3) m: every segment's ``end_m``."""
+        return np.stack([s.end_m for s in self.segments])
+
+    def index(self, name: str) -> int:
+        """Position of segment ``name`` (or an alias) in :attr:`names`; ``ValueError`` if absent."""
+        key = canonical_name(name)
+        if key not in self.names:
+            raise ValueError(
+                f"segment {name!r} is not in this skeleton; its segments: {', '.join(self.names)}"
+            )
+        return self.names.index(key)
+
+    def order(self, names: Sequence[str]) -> NDArray[np.intp]:
+        """Indices ``idx`` that put data listed as ``names`` in skeleton order (``data[idx]``).
+
+        ``names`` (sensor or segment names, aliases allowed) must name every segment exactly
+        once; a missing, extra, unknown or repeated name raises ``ValueError``.
+        """
+        keys = [canonical_name(n) for n in names]
+        extra = [n for n, k in zip(names, keys, strict=True) if k not in self.names]
+        missing = [n for n in self.names if n not in keys]
+        repeated = sorted({k for k in keys if keys.count(k) > 1})
+        if extra or missing or repeated:
+            raise ValueError(
+                f"expected one sensor per segment ({', '.join(self.names)}); "
+                f"missing: {missing}, not in this skeleton: {extra}, repeated: {repeated}"
+            )
+        return np.array([keys.index(n) for n in self.names], dtype=np.intp)
+
+    @classmethod
+    def from_height(
+        cls,
+        height_m: float,
+        preset: str = "full",
+        frame: str = "ENU",
+        dimensions_m: Mapping[str, float] | None = None,
+    ) -> Skeleton:
+        """Skeleton of a preset with dimensions scaled from body height (Winter 2009, Fig. 4.1).
+
+        Parameters
+        ----------
+        height_m : body height in m, in [0.5, 2.8].
+        preset : ``"full"`` (15 segments), ``"lower"`` (pelvis, thighs, shanks, feet: 7),
+            ``"left_arm"``/``"right_arm"`` (upper arm, forearm, hand: 000's 3-sensor arm),
+            ``"left_leg"``/``"right_leg"`` (thigh, shank, foot).
+        frame : ``"ENU"`` or ``"NED"``.
+        dimensions_m : overrides of :func:`dimensions_from_height`'s keys, in m (measured
+            lengths of this subject).
+
+        Geometry (reference pose, R right, F forward, U up; :func:`body_axes`): pelvis joint at
+        the mid-hip point, hips at ``±hip_width/2 R``; thigh ``-thigh U``; shank ``-shank U``;
+        foot ``foot_length F - ankle_height U`` (ankle taken above the heel, a simplification:
+        Fig. 4.1 gives no heel-to-ankle distance); trunk joint at the mid-hip point (Winter's
+        trunk starts at the greater trochanter), trunk ``trunk U``; head ``head U`` from the
+        top of the trunk; shoulders at ``trunk U ± shoulder_width/2 R``; arms ``-length U``.
+        The root stands at hip height (shoulder height for an arm) above the floor.
+        """
+        dims = dimensions_from_height(height_m)
+        for key, value in dict(dimensions_m or {}).items():
+            if key not in dims:
+                raise ValueError(
+                    f"unknown dimension {key!r} in dimensions_m; known: {', '.join(dims)}"
+                )
+            dims[key] = _positive(value, f"dimensions_m[{key!r}]")
+        if preset not in PRESETS:
+            raise ValueError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
+        frame = check_frame(frame)
+        right, forward, upward = body_axes(frame)
+        side = {"left": -1.0, "right": 1.0}
+        geometry: dict[str, tuple[Array, Array]] = {
+            "pelvis": (np.zeros(3), np.zeros(3)),
+            "trunk": (np.zeros(3), dims["trunk"] * upward),
+            "head": (dims["trunk"] * upward, dims["head"] * upward),
+        }
+        for s, sign in side.items():
+            geometry[f"{s}_upper_arm"] = (
+                dims["trunk"] * upward + sign * 0.5 * dims["shoulder_width"] * right,
+                -dims["upper_arm"] * upward,
+            )
+            geometry[f"{s}_forearm"] = (-dims["upper_arm"] * upward, -dims["forearm"] * upward)
+            geometry[f"{s}_hand"] = (-dims["forearm"] * upward, -dims["hand"] * upward)
+            geometry[f"{s}_thigh"] = (sign * 0.5 * dims["hip_width"] * right,
+                                      -dims["thigh"] * upward)
+            geometry[f"{s}_shank"] = (-dims["thigh"] * upward, -dims["shank"] * upward)
+            geometry[f"{s}_foot"] = (
+                -dims["shank"] * upward,
+                dims["foot_length"] * forward - dims["ankle_height"] * upward,
+            )
+        names = PRESETS[preset]
+        segments = []
+        for name in names:
+            parent = _PARENT[name]
+            offset, end = geometry[name]
+            if parent not in names:
+                parent, offset = None, np.zeros(3)
+            segments.append(Segment(name, parent, offset, end))
+        hip_height = dims["thigh"] + dims["shank"] + dims["ankle_height"]
+        root_height = hip_height + (dims["trunk"] if preset.endswith("_arm") else 0.0)
+        if preset.endswith("_arm") or preset.endswith("_leg"):
+            s = preset.split("_")[0]
+            root_offset = geometry[f"{s}_upper_arm" if preset.endswith("_arm") else f"{s}_thigh"][0]
+            root_lateral = root_offset - np.dot(root_offset, upward) * upward
+        else:
+            root_lateral = np.zeros(3)
+        return cls(tuple(segments), frame, root_height * upward + root_lateral)
