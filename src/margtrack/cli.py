@@ -22,6 +22,15 @@ app = typer.Typer(
 console = Console()
 err_console = Console(stderr=True)
 
+
+def _mount_calibration() -> None:
+    from margtrack.calibration.cli import calibrate_app
+
+    app.add_typer(calibrate_app, name="calibrate", help="Calibrate a MARG sensor (000, 003).")
+
+
+_mount_calibration()
+
 F = TypeVar("F", bound=Callable[..., Any])
 
 MethodOption = Annotated[
@@ -151,12 +160,20 @@ def run(
     method: MethodOption = "default",
     param: ParamOption = None,
     frame: Annotated[str | None, typer.Option(help="Output frame (default: the method's).")] = None,
+    calibration: Annotated[
+        Path | None, typer.Option(help="Calibration JSON (margtrack calibrate) to apply first.")
+    ] = None,
 ) -> None:
     """Estimate the orientation of a recording and save it (datasets `t` and `quat`)."""
     from margtrack import io, methods
     from margtrack.bench.metrics import error_series, summarize
 
     rec = io.read(path)
+    if calibration is not None:
+        from margtrack.calibration import load_calibration
+
+        rec = load_calibration(calibration).apply(rec)
+        console.print(f"applied calibration {calibration}")
     estimator = methods.create(method, param or ())
     estimate = estimator.run(rec)
     if frame is not None:
