@@ -21,7 +21,7 @@ from margtrack import frames, quaternion
 from margtrack.recording import Recording
 
 if TYPE_CHECKING:  # pragma: no cover
-    from margtrack import bench, body, estimators, filters, io, methods, sim
+    from margtrack import bench, body, calibration, estimators, filters, io, methods, sim
     from margtrack.bench.metrics import error_series, summarize
     from margtrack.estimators.base import Estimate, Estimator
     from margtrack.methods import available as available_methods
@@ -29,7 +29,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __version__ = "0.1.0"
 
-_LAZY_MODULES = {"bench", "body", "estimators", "filters", "io", "methods", "sim"}
+_LAZY_MODULES = {"bench", "body", "calibration", "estimators", "filters", "io", "methods", "sim"}
 _LAZY_NAMES = {
     "Estimate": ("margtrack.estimators.base", "Estimate"),
     "Estimator": ("margtrack.estimators.base", "Estimator"),
@@ -46,6 +46,7 @@ __all__ = [
     "available_methods",
     "bench",
     "body",
+    "calibration",
     "create",
     "error_series",
     "estimators",

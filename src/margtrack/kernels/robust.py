@@ -183,6 +183,9 @@ def robust_filter(
     h = math.sqrt(0.5)
     for s in range(n_sensors):
         st = state[s]
+        # low-pass gains depend only on the interval: recompute when it changes
+        gains_step = -1.0
+        k_rest = k_ref = k_mag = 0.0
         for i in range(n):
             g0, g1, g2 = gyr[s, i, 0], gyr[s, i, 1], gyr[s, i, 2]
             a0, a1, a2 = acc[s, i, 0], acc[s, i, 1], acc[s, i, 2]
@@ -192,6 +195,11 @@ def robust_filter(
                 step = 0.0
             rest = False
             disturbed = False
+            if step > 0.0 and step != gains_step:
+                k_rest = _lowpass_gain(step, coef[C_REST_TAU])
+                k_ref = _lowpass_gain(step, coef[C_MAG_REF_TAU])
+                k_mag = _lowpass_gain(step, coef[C_TAU_MAG])
+                gains_step = step
             if step > 0.0:
                 # -- 1. strapdown: q_gyr ⊗ exp((ω - b) dt / 2) -------------------------
                 w0 = g0 - st[I_BIAS]
@@ -210,7 +218,6 @@ def robust_filter(
                     st[I_BIAS_VAR + k] += walk
 
                 # -- 3. rest detection: small deviation from slow means, small rate ----
-                k_rest = _lowpass_gain(step, coef[C_REST_TAU])
                 dev_g = 0.0
                 dev_a = 0.0
                 for k, (gk, ak) in enumerate(((g0, a0), (g1, a1), (g2, a2))):
@@ -314,7 +321,6 @@ def robust_filter(
                         or abs(dip - st[I_MAG_DIP_REF]) > coef[C_MAG_DIP_TOL]
                     )
                     if step > 0.0:
-                        k_ref = _lowpass_gain(step, coef[C_MAG_REF_TAU])
                         if not disturbed:
                             st[I_MAG_UNDIST_T] += step
                             st[I_MAG_NORM_REF] += k_ref * (m_norm - ref_n)
@@ -325,7 +331,6 @@ def robust_filter(
                             # a fixed time constant: an adaptive (Kalman) gain that grows
                             # after fast turns or rejected disturbances was measured worse
                             # on BROAD, re-acquiring still-distorted fields too quickly
-                            k_mag = _lowpass_gain(step, coef[C_TAU_MAG])
                             error = _wrap(field_heading - st[I_HEAD])
                             st[I_HEAD] = _wrap(st[I_HEAD] + k_mag * error)
                         else:
