@@ -14,6 +14,7 @@ from typing import Any
 
 from margtrack.estimators.base import Estimator, Params
 from margtrack.estimators.triad import Triad
+from margtrack.filters.complementary import Bachmann, BachmannAccMag
 from margtrack.filters.gyro import GyroIntegration
 from margtrack.filters.robust import Robust
 
@@ -26,7 +27,13 @@ __all__ = [
     "parse_params_items",
 ]
 
-_CLASSES: tuple[type[Estimator], ...] = (GyroIntegration, Robust, Triad)
+_CLASSES: tuple[type[Estimator], ...] = (
+    Bachmann,
+    BachmannAccMag,
+    GyroIntegration,
+    Robust,
+    Triad,
+)
 _BY_NAME: Mapping[str, type[Estimator]] = types.MappingProxyType({c.name: c for c in _CLASSES})
 
 #: The recommended method; ``"default"`` resolves to it: the best measured on BROAD so far.

@@ -83,7 +83,9 @@ def check_unit_magnitudes(gyr_rad_s: Array, acc_m_s2: Array) -> None:
                 "(or check_units=False if it really is rad/s)"
             )
     if acc_m_s2.size:
-        median_norm = float(np.median(np.linalg.norm(acc_m_s2, axis=1)))
+        # the median of an evenly strided subsample: as telling, and cheap on long series
+        stride = max(1, acc_m_s2.shape[0] // 20_000)
+        median_norm = float(np.median(np.linalg.norm(acc_m_s2[::stride], axis=1)))
         if _ACC_G_LIKELY[0] < median_norm < _ACC_G_LIKELY[1]:
             raise ValueError(
                 f"acc has a median norm of {median_norm:.3f}, about 1 g rather than 9.81 m/s²; "

@@ -74,8 +74,20 @@ class State:
     t_last_s: float = float("nan")
 
     def copy(self) -> State:
-        """A deep copy (state arrays are updated in place by the kernels)."""
-        return copy.deepcopy(self)
+        """An independent copy (the kernels update state arrays in place).
+
+        Arrays are copied, containers deep-copied, scalars shared; cheaper than a generic
+        deep copy, which ``update`` would otherwise pay on every sample.
+        """
+        values = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, np.ndarray):
+                value = value.copy()
+            elif isinstance(value, (list, dict, set)):
+                value = copy.deepcopy(value)
+            values[f.name] = value
+        return type(self)(**values)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,416 @@
+"""Bachmann's quaternion complementary filter with Gauss-Newton drift correction (000, App. A).
+
+Each sample: rate quaternion from the gyroscope ``q̇ = ½ q̂ ⊗ (0, ω)`` (eq. 26), plus a drift
+correction ``q̇_ε = k Δq_full`` (eq. 25) that pulls the gravity and field predicted in the
+body frame, ``ĥ = q̂* ⊗ m ⊗ q̂`` and ``b̂ = q̂* ⊗ n ⊗ q̂`` (eqs. 13-14), towards the measured
+unit vectors ``h`` and ``b``; then Euler integration and normalisation (eq. 27).
+
+The correction is one reduced-order Gauss-Newton step on the error (eqs. 15-18)
+``ε = [h - ĥ; ρ (b - b̂)]`` with criterion ``φ = εᵀε`` (eq. 19):
+
+- ``X`` (6×4, eq. 20) holds the derivatives of ``[ĥ; b̂]`` with respect to the four
+  components of ``q̂`` (:func:`x_matrix`); ``∂ĥ/∂q_j = (e_j* ⊗ m ⊗ q̂ + q̂* ⊗ m ⊗ e_j)``
+  with ``e_0 = 1, e_1 = i, e_2 = j, e_3 = k``. It is the derivative of the prediction, so
+  ``ε`` changes by ``-X dq``; eq. 20 carries no ``ρ``.
+- ``X_v = X [q̂⊗i, q̂⊗j, q̂⊗k]`` (6×3, eq. 22) is the derivative along ``q̂ ⊗ (1, v)``.
+  Derived: ``d/dt (q̂ + t q̂⊗e)* ⊗ m ⊗ (q̂ + t q̂⊗e) = -e ⊗ ĥ + ĥ ⊗ e``, whose vector part is
+  ``2 ĥ × e``, so ``X_v = 2 [[ĥ]×; [b̂]×]`` (:func:`xv_matrix`, tested against both).
+- The step (eq. 23; the paper's ``X_v ε`` is a slip for ``X_vᵀ ε``) becomes
+  ``Δv_full = (X_vᵀ X_v)⁻¹ X_vᵀ ε = ½ M⁻¹ (h × ĥ + ρ b × b̂)`` with
+  ``M = 2 I - ĥĥᵀ - b̂b̂ᵀ``; rotated to the earth frame ``M`` becomes the constant
+  ``M0 = 2 I - m mᵀ - n nᵀ`` (det ``2 sin² γ``, γ the angle between m and n), which is
+  how the kernel computes it. Without a magnetometer ``M`` is singular along ``ĥ``; the
+  minimum-norm step ``½ h × ĥ`` leaves the heading alone.
+
+``ρ`` scales the magnetic residual but not its Jacobian, as eqs. 17-20 are written.
+Hence the heading (seen by the magnetometer only) is corrected at rate ``ρ k`` while
+tilt is corrected at rate ``k``; ``ρ → 0`` lets the heading drift, the behaviour 000
+reports ("Weighted Least Squares"). (With ``ρ`` in the Jacobian too, the heading step
+would not depend on ``ρ`` at all.) In the linear range the error decays like
+``exp(-k t)``, so its square reaches 37 % at ``t = 1/(2k)`` (000, eq. 12).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from margtrack import frames
+from margtrack import quaternion as quat
+from margtrack.estimators.base import Estimator, Params, State
+from margtrack.kernels import complementary as kernel
+
+Array = NDArray[np.float64]
+
+__all__ = [
+    "Bachmann",
+    "BachmannAccMag",
+    "BachmannParams",
+    "BachmannState",
+    "criterion",
+    "error_vector",
+    "gauss_newton_step",
+    "predicted_vectors",
+    "x_matrix",
+    "xv_matrix",
+]
+
+#: Smallest angle between the gravity and field references, deg: below it the heading is
+#: ill-defined (``det M0 = 2 sin² γ``); a field closer than 5 deg to vertical is refused.
+MIN_REFERENCE_ANGLE_DEG = 5.0
+
+
+def _vector3(value: Any, name: str) -> tuple[float, float, float]:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)) or not np.linalg.norm(arr) > 0:
+        raise ValueError(f"{name} must be a finite, non-zero 3-vector (earth frame), got {value!r}")
+    return tuple(float(v) for v in arr)
+
+
+def _number(value: Any, name: str, allowed: str, ok) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number {allowed}, got {value!r}") from None
+    if not (np.isfinite(x) and ok(x)):
+        raise ValueError(f"{name} must be {allowed}, got {value!r}")
+    return x
+
+
+@dataclass(frozen=True)
+class BachmannParams(Params):
+    """Parameters of the Bachmann filter (000, Appendix A). Bad values raise ``ValueError``.
+
+    gain : ``k`` (eq. 25), 1/s, >= 0; default 0.11. Tilt errors decay like ``exp(-k t)``
+        (squared error to 37 % at ``1/(2k)``, eq. 12). Raising it follows the
+        accelerometer and magnetometer faster: less gyro drift (a gyro bias b leaves an
+        error b/k), more noise and more error from linear acceleration and magnetic
+        disturbances. 0 is pure gyro integration. Keep ``k·dt`` well below 1 (eq. 27).
+    mag_weight : ``ρ`` (eq. 17), >= 0; default 0.8. Scales the magnetic residual:
+        heading errors decay at rate ``ρ k``. Lowering it resists magnetic disturbances
+        but lets heading drift (0: no magnetic residual at all).
+    correction_interval : a new drift correction every n-th sample (>= 1, default 1);
+        in between the latest one is reused, as in 000's 16-filter experiment.
+    round_robin : False (default): every sensor computes its new corrections at the same
+        samples. True: sensor ``s`` computes them at cycles ``c`` with
+        ``(c - s) % correction_interval == 0``, so with ``correction_interval`` equal to
+        the number of sensors exactly one filter corrects per cycle (000, "Reduce Rate
+        Drift Correction": one correction per 100 Hz cycle shared by 16 filters).
+    dip_deg : magnetic inclination for the field reference ``n``, deg, positive down, in
+        [-85, 85]; None (default) measures it for each sensor from its first sample
+        after a reset (angle between accelerometer and magnetometer), 000's "determined
+        during the calibration process".
+    gravity_reference : ``m`` as an earth-frame 3-vector (direction used); None: up in
+        ``frame`` (what a level accelerometer reads).
+    mag_reference : ``n`` as an earth-frame 3-vector (direction used), e.g. measured by a
+        calibration; None: from ``dip_deg``. Give at most one of ``dip_deg`` and this.
+    frame : earth frame of the output, "ENU" (default) or "NED".
+
+    The defaults of ``gain`` and ``mag_weight`` are the best single pair for all 16 BROAD
+    trials of ../shared/data/broad (``margtrack.bench.tune``, grid k in 0.05-4 /s, ρ in
+    0.1-1.25, dip measured at the start): mean total RMSE 5.15 deg.
+    """
+
+    gain: float = 0.11
+    mag_weight: float = 0.8
+    correction_interval: int = 1
+    round_robin: bool = False
+    dip_deg: float | None = None
+    gravity_reference: tuple[float, float, float] | None = None
+    mag_reference: tuple[float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        set_ = object.__setattr__
+        set_(self, "gain", _number(self.gain, "gain", ">= 0 (1/s)", lambda x: x >= 0))
+        set_(self, "mag_weight", _number(self.mag_weight, "mag_weight", ">= 0", lambda x: x >= 0))
+        n = self.correction_interval
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"correction_interval must be an integer >= 1, got {n!r}")
+        set_(self, "correction_interval", int(n))
+        if not isinstance(self.round_robin, (bool, np.bool_)):
+            raise ValueError(f"round_robin must be True or False, got {self.round_robin!r}")
+        set_(self, "round_robin", bool(self.round_robin))
+        if self.dip_deg is not None:
+            dip = _number(self.dip_deg, "dip_deg", "in [-85, 85] deg", lambda x: abs(x) <= 85)
+            set_(self, "dip_deg", dip)
+        if self.gravity_reference is not None:
+            set_(self, "gravity_reference", _vector3(self.gravity_reference, "gravity_reference"))
+        if self.mag_reference is not None:
+            if self.dip_deg is not None:
+                raise ValueError("give dip_deg or mag_reference, not both")
+            set_(self, "mag_reference", _vector3(self.mag_reference, "mag_reference"))
+        field_unit = self.mag_unit()
+        if field_unit is not None:
+            _check_reference_angle(self.gravity_unit(), field_unit)
+
+    def gravity_unit(self) -> Array:
+        """Unit gravity reference ``m`` (3,) in ``frame``."""
+        if self.gravity_reference is None:
+            return frames.up(self.frame)
+        g = np.array(self.gravity_reference)
+        return g / np.linalg.norm(g)
+
+    def mag_unit(self) -> Array | None:
+        """Unit field reference ``n`` (3,) in ``frame``; None when measured at the start."""
+        if self.mag_reference is not None:
+            n = np.array(self.mag_reference)
+            return n / np.linalg.norm(n)
+        if self.dip_deg is not None:
+            return frames.mag_reference(self.frame, self.dip_deg)
+        return None
+
+
+def _triad_axes(first: Array, second: Array) -> Array:
+    """Orthonormal axes (columns) ``a``, ``a × b / |.|``, ``a × (a × b) / |.|``."""
+    a = first / np.linalg.norm(first)
+    b = np.cross(a, second)
+    b /= np.linalg.norm(b)
+    return np.stack([a, b, np.cross(a, b)], axis=1)
+
+
+def _check_reference_angle(m: Array, n: Array) -> None:
+    sine = float(np.linalg.norm(np.cross(m, n)))
+    if sine < np.sin(np.radians(MIN_REFERENCE_ANGLE_DEG)):
+        raise ValueError(
+            f"the field reference is {np.degrees(np.arcsin(min(sine, 1.0))):.2f} deg from the "
+            f"gravity reference; it must be at least {MIN_REFERENCE_ANGLE_DEG} deg away "
+            "(the heading is undefined for a vertical field)"
+        )
+
+
+@dataclass
+class BachmannState(State):
+    """Complete filter state for S sensors.
+
+    quat : (S, 4) ``q̂`` after the last sample. t_last_s : its time, s.
+    correction_step : (S, 3) the held Gauss-Newton step ``Δv_E`` in the earth frame (the
+        latest correction; rad/2, applied as the earth-frame rate ``2 k Δv_E``).
+    phi : (S,) criterion of the held correction (eq. 19); nan before the first.
+    dip_rad : (S,) field inclination measured at the start, rad (nan: not measured).
+    cycle : samples processed since the reset (drives the correction schedule).
+    """
+
+    correction_step: Array = field(default_factory=lambda: np.zeros((0, 3)))
+    phi: Array = field(default_factory=lambda: np.zeros(0))
+    dip_rad: Array = field(default_factory=lambda: np.zeros(0))
+    cycle: int = 0
+
+
+class Bachmann(Estimator[BachmannParams, BachmannState]):
+    """Bachmann's quaternion complementary filter (``--method bachmann``), 000 Appendix A.
+
+    Full MARG with ``mag``; gyroscope + accelerometer with ``mag=None`` (heading from the
+    gyro alone). See :class:`BachmannAccMag` for tracking without a gyroscope.
+
+    Outputs (``Estimate.outputs``, leading axes as ``quat``):
+    ``phi`` (N,) criterion of the correction in use (eq. 19), held between new ones;
+    ``correction_rad_s`` (N, 3) the correction applied, as an earth-frame angular rate
+    ``ω_ε`` with ``q̇_ε = ½ (0, ω_ε) ⊗ q̂`` (``= 2 k Δv_full`` rotated to the earth);
+    ``new_correction`` (N,) bool, True where a new correction was computed;
+    ``degenerate`` (N,) int8: 1 zero accelerometer (no correction), 2 zero magnetometer
+    (gravity-only correction), 0 otherwise.
+    """
+
+    name = "bachmann"
+    params_type = BachmannParams
+    # derived coefficients: (params, measured dips) -> (m, n per sensor), so that live
+    # update() calls do not rebuild the references every sample
+    _references: tuple[Any, Array, Array] | None = None
+
+    def _new_state(self, quat0: Array) -> BachmannState:
+        n = quat0.shape[0]
+        return BachmannState(
+            quat=np.array(quat0, dtype=np.float64),
+            correction_step=np.zeros((n, 3)),
+            phi=np.full(n, np.nan),
+            dip_rad=np.full(n, np.nan),
+        )
+
+    def _initial_quat(self, acc0: Array, mag0: Array | None) -> Array:
+        """TRIAD (or shortest arc) start, turned onto explicit reference vectors if given."""
+        q0 = super()._initial_quat(acc0, mag0)
+        p = self.params
+        if p.gravity_reference is None and p.mag_reference is None:
+            return q0
+        up, m = frames.up(p.frame), p.gravity_unit()
+        if mag0 is None:
+            turn = quat.shortest_arc(up, m)
+        else:  # the rotation taking (up, north) onto (m, n): TRIAD of the references
+            n = p.mag_unit() if p.mag_reference is not None else frames.mag_reference(p.frame)
+            std = _triad_axes(up, frames.mag_reference(p.frame))
+            turn = quat.from_matrix(_triad_axes(m, n) @ std.T)
+        return quat.multiply(turn, q0)
+
+    def _mag_references(self, state: BachmannState, acc: Array, mag: Array | None) -> Array:
+        """Unit field reference (S, 3) per sensor; measures the dip on first use."""
+        p = self.params
+        n_sensors = acc.shape[0]
+        fixed = p.mag_unit()
+        if fixed is not None:
+            return np.tile(fixed, (n_sensors, 1))
+        if mag is None:
+            return np.tile(frames.mag_reference(p.frame, 0.0), (n_sensors, 1))  # unused
+        todo = np.flatnonzero(np.isnan(state.dip_rad))
+        if todo.size:
+            a, b = acc[todo, 0], mag[todo, 0]
+            na, nb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
+            sine = -np.einsum("ij,ij->i", a, b) / np.where(na * nb > 0, na * nb, 1.0)
+            dip = np.arcsin(np.clip(sine, -1.0, 1.0))
+            bad = (na == 0) | (nb == 0) | (np.abs(dip) > np.radians(85.0))
+            if np.any(bad):
+                s = int(todo[np.flatnonzero(bad)[0]])
+                raise ValueError(
+                    f"cannot measure the field inclination of sensor {s} from its first sample "
+                    "(zero vector or field within 5 deg of vertical); give dip_deg or "
+                    "mag_reference"
+                )
+            state.dip_rad[todo] = dip
+        refs = np.empty((n_sensors, 3))
+        for s in range(n_sensors):
+            refs[s] = frames.mag_reference(p.frame, float(np.degrees(state.dip_rad[s])))
+            _check_reference_angle(p.gravity_unit(), refs[s])
+        return refs
+
+    def _coefficients(
+        self, state: BachmannState, acc: Array, mag: Array | None
+    ) -> tuple[Array, Array]:
+        """Unit gravity reference (3,) and field references (S, 3), cached per parameters."""
+        key = (self.params, acc.shape[0], mag is None, state.dip_rad.tobytes())
+        if self._references is None or self._references[0] != key:
+            refs = self._mag_references(state, acc, mag)
+            key = (self.params, acc.shape[0], mag is None, state.dip_rad.tobytes())
+            self._references = (key, self.params.gravity_unit(), refs)
+        return self._references[1], self._references[2]
+
+    def _process(
+        self,
+        state: BachmannState,
+        gyr: Array | None,
+        acc: Array,
+        mag: Array | None,
+        dt: Array,
+    ) -> tuple[Array, dict[str, NDArray[Any]]]:
+        p = self.params
+        n_sensors, n = acc.shape[0], acc.shape[1]
+        grav, refs = self._coefficients(state, acc, mag)
+        interval = p.correction_interval
+        phase = np.zeros(n_sensors, dtype=np.int64)
+        if p.round_robin:
+            phase = np.arange(n_sensors, dtype=np.int64) % interval
+        empty = np.empty((n_sensors, 0, 3))
+        q = np.empty((n_sensors, n, 4))
+        phi = np.empty((n_sensors, n))
+        corr = np.empty((n_sensors, n, 3))
+        new = np.empty((n_sensors, n), dtype=np.bool_)
+        flags = np.empty((n_sensors, n), dtype=np.int8)
+        kernel.bachmann(
+            state.quat, state.correction_step, state.phi,
+            empty if gyr is None else gyr, acc, empty if mag is None else mag, dt,
+            grav, refs, p.gain, p.mag_weight, interval, phase, state.cycle,
+            q, phi, corr, new, flags,
+        )  # fmt: skip
+        state.cycle += n
+        outputs = {"phi": phi, "correction_rad_s": corr, "new_correction": new, "degenerate": flags}
+        return q, outputs
+
+
+class BachmannAccMag(Bachmann):
+    """The Bachmann filter without a gyroscope (``--method bachmann-accmag``).
+
+    000, "Accelerometer/Magnetometer Only Tracking": the filter is driven by the drift
+    correction alone, ``q̂ + Δt q̇_ε`` (eq. 27 without eq. 26), a first-order follower of
+    the Gauss-Newton solution with time constant ``1/k``. Gyroscope data, if given, are
+    ignored; a magnetometer is required. Fine for slow motion; at high gain it overshoots
+    after quick motions (linear acceleration is taken for gravity).
+    """
+
+    name = "bachmann-accmag"
+    uses_gyr = False
+    mag_optional = False
+
+
+# -- Appendix A written out, one sample, for reference and tests ---------------------------
+def _pure(v: ArrayLike) -> Array:
+    return np.concatenate([[0.0], np.asarray(v, dtype=np.float64)])
+
+
+def _unit(v: ArrayLike) -> Array:
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def predicted_vectors(q: ArrayLike, grav_ref: ArrayLike, mag_ref: ArrayLike) -> tuple[Array, Array]:
+    """``ĥ = q* ⊗ m ⊗ q`` and ``b̂ = q* ⊗ n ⊗ q`` (eqs. 13-14), unit 3-vectors in the body."""
+    qc = quat.conjugate(q)
+    h = quat.multiply(quat.multiply(qc, _pure(_unit(grav_ref))), q)[1:]
+    b = quat.multiply(quat.multiply(qc, _pure(_unit(mag_ref))), q)[1:]
+    return _unit(h), _unit(b)
+
+
+def error_vector(
+    q: ArrayLike,
+    acc: ArrayLike,
+    mag: ArrayLike,
+    grav_ref: ArrayLike,
+    mag_ref: ArrayLike,
+    mag_weight: float,
+) -> Array:
+    """``ε = [h - ĥ; ρ (b - b̂)]`` (6,) with unit measured ``h``, ``b`` (eqs. 15-18)."""
+    h_hat, b_hat = predicted_vectors(q, grav_ref, mag_ref)
+    return np.concatenate([_unit(acc) - h_hat, mag_weight * (_unit(mag) - b_hat)])
+
+
+def criterion(
+    q: ArrayLike,
+    acc: ArrayLike,
+    mag: ArrayLike,
+    grav_ref: ArrayLike,
+    mag_ref: ArrayLike,
+    mag_weight: float,
+) -> float:
+    """``φ = εᵀ ε`` (eq. 19)."""
+    e = error_vector(q, acc, mag, grav_ref, mag_ref, mag_weight)
+    return float(e @ e)
+
+
+def x_matrix(q: ArrayLike, grav_ref: ArrayLike, mag_ref: ArrayLike) -> Array:
+    """``X`` (6, 4) as eq. 20 writes it: column j is ``∂[q*⊗m⊗q; q*⊗n⊗q]/∂q_j``, vector part.
+
+    Row j of eq. 20 is ``(e_j* ⊗ m) ⊗ q̂ + q̂⁻¹ ⊗ (m ⊗ e_j)``, ``e_j`` = 1, i, j, k (eq. 21).
+    """
+    q = np.asarray(q, dtype=np.float64)
+    qc = quat.conjugate(q)
+    cols = []
+    for e in np.eye(4):
+        part = []
+        for ref in (grav_ref, mag_ref):
+            r = _pure(_unit(ref))
+            d = quat.multiply(quat.multiply(quat.conjugate(e), r), q)
+            d = d + quat.multiply(qc, quat.multiply(r, e))
+            part.append(d[1:])
+        cols.append(np.concatenate(part))
+    return np.stack(cols, axis=1)
+
+
+def xv_matrix(q: ArrayLike, grav_ref: ArrayLike, mag_ref: ArrayLike) -> Array:
+    """``X_v = X [q̂⊗i, q̂⊗j, q̂⊗k]`` (6, 3) (eq. 22); equals ``2 [[ĥ]×; [b̂]×]``."""
+    basis = np.stack([quat.multiply(q, e) for e in np.eye(4)[1:]], axis=1)  # (4, 3)
+    return x_matrix(q, grav_ref, mag_ref) @ basis
+
+
+def gauss_newton_step(
+    q: ArrayLike,
+    acc: ArrayLike,
+    mag: ArrayLike,
+    grav_ref: ArrayLike,
+    mag_ref: ArrayLike,
+    mag_weight: float,
+) -> Array:
+    """``Δv_full = (X_vᵀ X_v)⁻¹ X_vᵀ ε`` (3,), body frame (eq. 23), by a linear solve."""
+    xv = xv_matrix(q, grav_ref, mag_ref)
+    e = error_vector(q, acc, mag, grav_ref, mag_ref, mag_weight)
+    return np.linalg.solve(xv.T @ xv, xv.T @ e)
