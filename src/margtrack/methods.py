@@ -15,6 +15,7 @@ from typing import Any
 from margtrack.estimators.base import Estimator, Params
 from margtrack.estimators.triad import Triad
 from margtrack.filters.complementary import Bachmann, BachmannAccMag
+from margtrack.filters.gradient import Gradient
 from margtrack.filters.gyro import GyroIntegration
 from margtrack.filters.robust import Robust
 
@@ -30,6 +31,7 @@ __all__ = [
 _CLASSES: tuple[type[Estimator], ...] = (
     Bachmann,
     BachmannAccMag,
+    Gradient,
     GyroIntegration,
     Robust,
     Triad,

@@ -188,7 +188,7 @@ class Estimator(ABC, Generic[P, S]):
     ----------
     params : the method's frozen parameter dataclass (defaults when omitted).
     rate_hz : sample rate used when neither timestamps nor ``dt`` are given, Hz.
-    **param_values : shortcuts for fields of ``params`` (``Gradient(gain=0.1)``).
+    **param_values : shortcuts for fields of ``params`` (``Gradient(beta=0.1)``).
     """
 
     name: ClassVar[str]

@@ -1,6 +1,7 @@
 """Recursive filters: gyro propagation corrected by accelerometer and magnetometer."""
 
 from margtrack.filters.complementary import Bachmann, BachmannAccMag, BachmannParams
+from margtrack.filters.gradient import Gradient, GradientParams, align_to_gyro
 from margtrack.filters.gyro import GyroIntegration, GyroParams
 from margtrack.filters.robust import Robust, RobustParams
 
@@ -8,8 +9,11 @@ __all__ = [
     "Bachmann",
     "BachmannAccMag",
     "BachmannParams",
+    "Gradient",
+    "GradientParams",
     "GyroIntegration",
     "GyroParams",
     "Robust",
     "RobustParams",
+    "align_to_gyro",
 ]

@@ -155,7 +155,7 @@ def simulate_default(
     """A ready-made demo recording: :func:`random_motion` seen by a consumer MEMS MARG sensor.
 
     The motion is ``random_motion(duration_s, rate_hz, seed, max_rate_deg_s=200,
-    bandwidth_hz=2, translation_m=0.02)`` (peak linear acceleration of a few m/s²); with
+    bandwidth_hz=2, translation_m=0.02)`` (linear acceleration peaks of 0.5-1.5 m/s²); with
     ``noise`` the sensors have :meth:`SensorErrors.mems_gyr`, ``mems_acc`` and ``mems_mag``
     errors, otherwise none. Dip and field are the defaults of :func:`simulate`. Used by the
     README's quick demo and ``margtrack simulate``; the 100 Hz default is only this demo's.
