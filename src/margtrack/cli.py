@@ -340,8 +340,9 @@ def bench_broad(
         str, typer.Option(help="Other libraries, comma-separated: vqf, imufusion, madgwick.")
     ] = "vqf,imufusion",
     madgwick_beta: Annotated[
-        float, typer.Option(help="Gain of ahrs' Madgwick filter (pure Python: slow).")
-    ] = 0.041,
+        float,
+        typer.Option(help="Gain of ahrs' Madgwick (best single beta on BROAD; pure Python, slow)."),
+    ] = 0.08,
     out: Annotated[Path, typer.Option(help="PNG bar plot.")] = Path("broad_comparison.png"),
 ) -> None:
     """Compare margtrack's methods with other libraries on BROAD: table, bar plot, speed."""
