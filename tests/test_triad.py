@@ -86,3 +86,37 @@ def test_degenerate_samples_are_flagged_and_hold_the_previous_orientation():
 def test_triad_needs_a_magnetometer():
     with pytest.raises(ValueError, match="method 'triad' needs a magnetometer"):
         Triad().run(gyr=None, acc=np.ones((3, 3)), rate_hz=1.0, check_units=False)
+
+
+def test_triad_is_003s_world_frame_direction_cosine_matrix():
+    # 003 eqs. 10-13: z_W = Ĝ (measured, up), y_W = z_W × N / |.|, x_W = y_W × z_W and
+    # C = [x_W y_W z_W]ᵀ maps body to the world frame x north, y west, z up (NWU), which
+    # is NED turned by a half turn about north: q_nwu = [0, 1, 0, 0] ⊗ q_ned
+    rng = np.random.default_rng(11)
+    q_true = _random_quats(40, 12)
+    acc, mag = _measure(q_true, "NED")
+    acc = acc + rng.normal(scale=0.3, size=acc.shape)
+    mag = mag + rng.normal(scale=3.0, size=mag.shape)
+    est = Triad(frame="NED").run(gyr=None, acc=acc, mag=mag, rate_hz=1.0)
+    for i in range(len(acc)):
+        z_w = acc[i] / np.linalg.norm(acc[i])
+        y_w = np.cross(z_w, mag[i])
+        y_w /= np.linalg.norm(y_w)
+        x_w = np.cross(y_w, z_w)
+        c_003 = np.array([x_w, y_w, z_w])
+        q_nwu = quat.multiply([0.0, 1.0, 0.0, 0.0], est.quat[i])
+        np.testing.assert_allclose(quat.to_matrix(q_nwu), c_003, atol=1e-12)
+
+
+def test_the_single_sensor_kernel_used_for_initialisation_agrees_with_the_estimator():
+    from margtrack.kernels.triad import triad
+
+    q_true = _random_quats(30, 13)
+    acc, mag = _measure(q_true, "ENU")
+    acc[5] = 0.0
+    out = np.empty((len(acc), 4))
+    flags = np.empty(len(acc), dtype=np.int8)
+    triad(acc, mag, frames.up("ENU"), frames.mag_reference("ENU", 0.0), out, flags)
+    est = Triad().run(gyr=None, acc=acc, mag=mag, rate_hz=1.0, check_units=False)
+    np.testing.assert_allclose(out, est.quat, atol=1e-15)  # two compilations: rounding only
+    np.testing.assert_array_equal(flags, est.outputs["degenerate"])

@@ -13,6 +13,10 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 from margtrack.estimators.base import Estimator, Params
+from margtrack.estimators.davenport import Davenport
+from margtrack.estimators.fqa import Fqa
+from margtrack.estimators.gauss_newton import GaussNewton, Newton
+from margtrack.estimators.quest import Quest
 from margtrack.estimators.triad import Triad
 from margtrack.filters.complementary import Bachmann, BachmannAccMag
 from margtrack.filters.gradient import Gradient
@@ -31,8 +35,13 @@ __all__ = [
 _CLASSES: tuple[type[Estimator], ...] = (
     Bachmann,
     BachmannAccMag,
+    Davenport,
+    Fqa,
+    GaussNewton,
     Gradient,
     GyroIntegration,
+    Newton,
+    Quest,
     Robust,
     Triad,
 )

@@ -330,10 +330,17 @@ class Estimator(ABC, Generic[P, S]):
             has_mag = [r.mag is not None for r in recs]
             if any(has_mag) and not all(has_mag):
                 raise ValueError("either every recording or none must have a magnetometer")
+
+            def stacked(name: str) -> Array:
+                # a single recording is passed as a view: no copy of long series
+                if len(recs) == 1:
+                    return getattr(recs[0], name)[None]
+                return np.stack([getattr(r, name) for r in recs])
+
             est = self._run_arrays(
-                np.stack([r.gyr for r in recs]),
-                np.stack([r.acc for r in recs]),
-                np.stack([r.mag for r in recs]) if all(has_mag) else None,
+                stacked("gyr") if self.uses_gyr else None,
+                stacked("acc"),
+                stacked("mag") if all(has_mag) else None,
                 recs[0].t,
                 check_units=False,
             )
