@@ -18,6 +18,7 @@ from margtrack.estimators.fqa import Fqa
 from margtrack.estimators.gauss_newton import GaussNewton, Newton
 from margtrack.estimators.quest import Quest
 from margtrack.estimators.triad import Triad
+from margtrack.filters.bias_kf import BiasKalman
 from margtrack.filters.complementary import Bachmann, BachmannAccMag
 from margtrack.filters.gradient import Gradient
 from margtrack.filters.gyro import GyroIntegration
@@ -35,6 +36,7 @@ __all__ = [
 _CLASSES: tuple[type[Estimator], ...] = (
     Bachmann,
     BachmannAccMag,
+    BiasKalman,
     Davenport,
     Fqa,
     GaussNewton,

@@ -1,5 +1,6 @@
 """Recursive filters: gyro propagation corrected by accelerometer and magnetometer."""
 
+from margtrack.filters.bias_kf import BiasKalman, BiasKalmanParams
 from margtrack.filters.complementary import Bachmann, BachmannAccMag, BachmannParams
 from margtrack.filters.gradient import Gradient, GradientParams, align_to_gyro
 from margtrack.filters.gyro import GyroIntegration, GyroParams
@@ -9,6 +10,8 @@ __all__ = [
     "Bachmann",
     "BachmannAccMag",
     "BachmannParams",
+    "BiasKalman",
+    "BiasKalmanParams",
     "Gradient",
     "GradientParams",
     "GyroIntegration",

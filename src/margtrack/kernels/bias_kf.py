@@ -1,0 +1,363 @@
+"""Kernel of Ang's bias-augmented quaternion Kalman filter (003 eqs. 20-51).
+
+State per sensor: ``x = [q (4), b (3)]``, ``q`` body-to-earth ``[w, x, y, z]`` (Hamilton),
+``b`` the angular-rate bias in rad/s, and the full 7x7 covariance ``P``. Every sample:
+predict with the measured rate minus the bias (eqs. 25-31, 47-48), then correct with the
+quaternion of the TRIAD matrix (eqs. 10-13, 38) weighted by the TRIAD error covariance
+(eqs. 41-46), Kalman update (eqs. 49-51) in Joseph form, and normalise ``q``.
+
+The small matrix algebra is written as loops over buffers allocated once per call, using
+the structure of ``Φ`` and ``H``: 4.6 times the throughput of the same filter written with
+7x7 ``@`` products and ``np.linalg.inv`` inside numba (``benchmarks/bias_kf_speed.py``:
+1.1e6 against 2.4e5 samples/s). The covariance loops take their bounds from array shapes,
+which keeps LLVM from unrolling them and the compile time to a few seconds.
+
+Convention notes (derived, the extracted text of 003 differs):
+
+- eq. 21 prints ``Ω̃ = [[0, -Ωᵀ], [Ω, +Ω×]]``; with ``q`` body-to-earth (eq. 38 builds
+  ``q`` from ``C^T``, the body-to-world matrix) the kinematics are ``q̇ = ½ q ⊗ (0, Ω)``,
+  whose matrix is ``[[0, -Ωᵀ], [Ω, -Ω×]]``. The sign of ``Ω×`` is flipped here.
+- eq. 24 lists ``Q̃`` with the scalar row last (Lefferts' vector-first layout) although
+  eq. 14 puts ``q0`` first; here the scalar row comes first, so ``Q̃ b = q ⊗ (0, b)``.
+- eq. 28 prints ``Φ_B = -½ Φ_Q Q̃``; integrating eq. 22 over one period gives
+  ``Φ_B = -½ T Φ_Q Q̃`` (the ``T`` makes ``Φ_B b`` dimensionless).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from margtrack.kernels._quat import cross, from_matrix, normalized
+from margtrack.kernels.triad import OK, PARALLEL, PARALLEL_SINE, ZERO_ACC, ZERO_MAG
+
+#: flag: the innovation covariance was not positive definite, the update was skipped
+#: (5, not 4: kernels.triad uses 4 for a failed Gauss-Newton solve)
+NOT_PD = 5
+
+__all__ = [
+    "NOT_PD",
+    "OK",
+    "PARALLEL",
+    "ZERO_ACC",
+    "ZERO_MAG",
+    "bias_kf",
+    "fill_phi_q",
+    "fill_qtilde",
+    "fill_quat_noise",
+    "fill_triad_cov",
+]
+
+
+@njit(cache=True)
+def fill_qtilde(w, x, y, z, out):
+    """Q̃ (4, 3) with ``Q̃ b = q ⊗ (0, b)`` (003 eqs. 23-24, scalar row first)."""
+    out[0, 0], out[0, 1], out[0, 2] = -x, -y, -z
+    out[1, 0], out[1, 1], out[1, 2] = w, -z, y
+    out[2, 0], out[2, 1], out[2, 2] = z, w, -x
+    out[3, 0], out[3, 1], out[3, 2] = -y, x, w
+
+
+@njit(cache=True)
+def fill_phi_q(tx, ty, tz, out):
+    """Φ_Q (4, 4) = cos(|Θ|/2) I + sin(|Θ|/2)/|Θ| Θ̃ (003 eq. 27), ``Θ = Ω T`` rad.
+
+    ``Φ_Q q = q ⊗ exp(Θ/2)``: the exact transition for a rate constant over the period,
+    an orthogonal matrix (Θ̃ is skew), so it keeps unit norm.
+    """
+    angle = math.sqrt(tx * tx + ty * ty + tz * tz)
+    c = math.cos(0.5 * angle)
+    s = 0.5 - angle * angle / 48.0 if angle < 1e-6 else math.sin(0.5 * angle) / angle
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = c, -s * tx, -s * ty, -s * tz
+    out[1, 0], out[1, 1], out[1, 2], out[1, 3] = s * tx, c, s * tz, -s * ty
+    out[2, 0], out[2, 1], out[2, 2], out[2, 3] = s * ty, -s * tz, c, s * tx
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = s * tz, s * ty, -s * tx, c
+
+
+@njit(cache=True)
+def fill_quat_noise(w, x, y, z, cov3, qt, out, along_var=-1.0):
+    """Covariance (4, 4) of ``q ⊗ exp(θ/2) - q`` for a body-frame error angle θ ~ N(0, cov3).
+
+    First order: ``¼ Q̃ Ξ Q̃ᵀ`` (003 eqs. 31 and 46), singular along ``q`` itself. Along
+    ``q`` the error is ``cos(|θ|/2) - 1 ≈ -|θ|²/8``, second order and never positive;
+    ``along_var`` sets the variance given to that direction: < 0 uses its Gaussian second
+    moment ``E|θ|⁴/64 = ((tr Ξ)² + 2 tr Ξ²)/64`` (capped at 1), which keeps ``P`` positive
+    definite (process noise, initial covariance). The measurement uses 1, the largest
+    second moment that component can have: it carries no orientation information and is
+    biased (always <= 0), and a tiny variance there lets it leak into the state through
+    cross-covariances (on static data the bias estimate then sits several σ off).
+    ``qt`` is a (4, 3) buffer.
+    """
+    fill_qtilde(w, x, y, z, qt)
+    tr = cov3[0, 0] + cov3[1, 1] + cov3[2, 2]
+    tr2 = 0.0
+    for i in range(3):
+        for j in range(3):
+            tr2 += cov3[i, j] * cov3[j, i]
+    # |cos(|θ|/2) - 1| <= 1 for the angles <= π a sign-aligned quaternion can differ by,
+    # so its second moment never exceeds 1 (the Gaussian moment does for huge Ξ)
+    along = min((tr * tr + 2.0 * tr2) / 64.0, 1.0) if along_var < 0.0 else along_var
+    q = (w, x, y, z)
+    for i in range(4):
+        for j in range(i, 4):
+            acc = 0.0
+            for a in range(3):
+                row = qt[i, 0] * cov3[0, a] + qt[i, 1] * cov3[1, a] + qt[i, 2] * cov3[2, a]
+                acc += row * qt[j, a]
+            value = 0.25 * acc + along * q[i] * q[j]
+            out[i, j] = value
+            out[j, i] = value
+
+
+@njit(cache=True)
+def fill_triad_cov(zx, zy, zz, nx, ny, nz, var_g, var_n, out):
+    """TRIAD error-angle covariance (3, 3), body frame, rad² (003 eq. 45; Shuster & Oh 1981).
+
+    ``z`` unit up (accelerometer) and ``n`` unit field, body frame; ``var_g``, ``var_n`` the
+    variances of a component of each unit vector normal to it (eqs. 41, 44).
+    ``Ξθ = σ_G² I + [(σ_N² - σ_G²) z zᵀ + σ_G² (z·n)(z nᵀ + n zᵀ)] / |z × n|²``.
+    """
+    cx, cy, cz = cross(zx, zy, zz, nx, ny, nz)
+    inv = 1.0 / (cx * cx + cy * cy + cz * cz)
+    d = zx * nx + zy * ny + zz * nz
+    z = (zx, zy, zz)
+    n = (nx, ny, nz)
+    for i in range(3):
+        for j in range(3):
+            v = inv * ((var_n - var_g) * z[i] * z[j] + var_g * d * (z[i] * n[j] + n[i] * z[j]))
+            out[i, j] = v + (var_g if i == j else 0.0)
+
+
+@njit(cache=True)
+def _triad(ax, ay, az, mx, my, mz, up, north):
+    """TRIAD (003 eqs. 10-13) as a quaternion, with the unit body vectors it used.
+
+    Returns (flag, w, x, y, z, ẑ (3), n̂ (3)); the quaternion is ``from_matrix`` of
+    ``R = M_ref M_meaᵀ`` (body to earth, i.e. ``(ᵂC_B)ᵀ`` in the reference frame's axes)
+    by the largest of four branches, so every orientation works (eq. 38 is only the
+    ``q0 > 0`` branch and divides by zero at half turns).
+    """
+    na = math.sqrt(ax * ax + ay * ay + az * az)
+    nm = math.sqrt(mx * mx + my * my + mz * mz)
+    if not na > 0.0:
+        return ZERO_ACC, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0
+    if not nm > 0.0:
+        return ZERO_MAG, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0
+    ax, ay, az = ax / na, ay / na, az / na
+    mx, my, mz = mx / nm, my / nm, mz / nm
+    r2x, r2y, r2z = cross(ax, ay, az, mx, my, mz)  # eq. 11
+    n2 = math.sqrt(r2x * r2x + r2y * r2y + r2z * r2z)
+    if n2 < PARALLEL_SINE:
+        return PARALLEL, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0
+    r2x, r2y, r2z = r2x / n2, r2y / n2, r2z / n2
+    r3x, r3y, r3z = cross(ax, ay, az, r2x, r2y, r2z)
+    s1x, s1y, s1z = up[0], up[1], up[2]
+    s2x, s2y, s2z = cross(s1x, s1y, s1z, north[0], north[1], north[2])
+    ns = math.sqrt(s2x * s2x + s2y * s2y + s2z * s2z)
+    s2x, s2y, s2z = s2x / ns, s2y / ns, s2z / ns
+    s3x, s3y, s3z = cross(s1x, s1y, s1z, s2x, s2y, s2z)
+    w, x, y, z = from_matrix(
+        s1x * ax + s2x * r2x + s3x * r3x,
+        s1x * ay + s2x * r2y + s3x * r3y,
+        s1x * az + s2x * r2z + s3x * r3z,
+        s1y * ax + s2y * r2x + s3y * r3x,
+        s1y * ay + s2y * r2y + s3y * r3y,
+        s1y * az + s2y * r2z + s3y * r3z,
+        s1z * ax + s2z * r2x + s3z * r3x,
+        s1z * ay + s2z * r2y + s3z * r3y,
+        s1z * az + s2z * r2z + s3z * r3z,
+    )
+    return OK, w, x, y, z, ax, ay, az, mx, my, mz
+
+
+@njit(cache=True)
+def _predict_covariance(p, g, gp):
+    """``P ← Φ P Φᵀ`` in place for ``Φ = [[G], [0, I]]``, ``G = [Φ_Q, Φ_B]`` (m, n) (eq. 48).
+
+    Only the top ``m`` rows and columns change; ``gp`` is an (m, n) buffer. Loop bounds
+    come from the shapes (not literals), which keeps numba's compile time short.
+    """
+    m, n = g.shape[0], g.shape[1]
+    for r in range(m):
+        for c in range(n):
+            acc = 0.0
+            for k in range(n):
+                acc += g[r, k] * p[k, c]
+            gp[r, c] = acc
+    for r in range(m):
+        for c in range(r, m):
+            acc = 0.0
+            for k in range(n):
+                acc += gp[r, k] * g[c, k]
+            p[r, c] = acc
+            p[c, r] = acc
+        for c in range(m, n):
+            p[r, c] = gp[r, c]
+            p[c, r] = gp[r, c]
+
+
+@njit(cache=True)
+def _kalman_update(p, v, innov, chol, y, gain, zmat, kv, dx):
+    """Update with ``H = [I_m 0]`` (eqs. 49-51): fills ``dx = K ν``, ``P`` in Joseph form.
+
+    p (n, n) in/out, v (m, m) measurement covariance, innov (m,); the rest are buffers.
+    ``S = P_mm + V`` is factored by Cholesky and ``K = P Hᵀ S⁻¹`` obtained by two
+    triangular solves; ``P = (I - KH) P (I - KH)ᵀ + K V Kᵀ``, then mirrored so it is
+    exactly symmetric. Returns False (nothing changed) if ``S`` is not positive definite.
+    """
+    m, n = v.shape[0], p.shape[0]
+    for r in range(m):
+        for c in range(r + 1):
+            acc = p[r, c] + v[r, c]
+            for k in range(c):
+                acc -= chol[r, k] * chol[c, k]
+            if r == c:
+                if not acc > 0.0:
+                    return False
+                chol[r, r] = math.sqrt(acc)
+            else:
+                chol[r, c] = acc / chol[c, c]
+    for c in range(n):  # Y = S⁻¹ H P, K = Yᵀ (eq. 49)
+        for r in range(m):
+            acc = p[r, c]
+            for k in range(r):
+                acc -= chol[r, k] * y[k, c]
+            y[r, c] = acc / chol[r, r]
+        for r in range(m - 1, -1, -1):
+            acc = y[r, c]
+            for k in range(r + 1, m):
+                acc -= chol[k, r] * y[k, c]
+            y[r, c] = acc / chol[r, r]
+    for r in range(n):
+        acc = 0.0
+        for c in range(m):
+            gain[r, c] = y[c, r]
+            acc += y[c, r] * innov[c]
+        dx[r] = acc  # eq. 50
+    for r in range(n):  # Z = (I - KH) P, KV
+        for c in range(n):
+            acc = p[r, c]
+            for k in range(m):
+                acc -= gain[r, k] * p[k, c]
+            zmat[r, c] = acc
+        for c in range(m):
+            acc = 0.0
+            for k in range(m):
+                acc += gain[r, k] * v[k, c]
+            kv[r, c] = acc
+    for r in range(n):  # P = Z - Z Hᵀ Kᵀ + K V Kᵀ (eq. 51, Joseph form)
+        for c in range(r, n):
+            acc = zmat[r, c]
+            for k in range(m):
+                acc += (kv[r, k] - zmat[r, k]) * gain[c, k]
+            p[r, c] = acc
+    for r in range(n):
+        for c in range(r):
+            p[r, c] = p[c, r]
+    return True
+
+
+@njit(cache=True)
+def bias_kf(
+    quat_state, bias_state, cov_state, gyr, acc, mag, dt, up, north,
+    gyr_var, bias_var, acc_var, acc_motion_var_m2_s4, gravity2_m2_s4, mag_var,
+    quat_out, bias_out, cov_diag_out, flags,
+):  # fmt: skip
+    """Run the filter for S sensors over N samples, updating the state arrays in place.
+
+    quat_state (S, 4), bias_state (S, 3) rad/s, cov_state (S, 7, 7): state before sample 0,
+    replaced by the state after the last sample. gyr (S, N, 3) rad/s, acc (S, N, 3) m/s²,
+    mag (S, N, 3) any unit; dt (N,) s (dt = 0: first sample, output the state as it is).
+    up, north (3,): unit earth-frame up and horizontal north. gyr_var (3,) (rad/s)²/Hz and
+    bias_var (3,) (rad/s)²/s: squared noise densities per body axis; acc_var (m/s²)²/Hz
+    and mag_var unit²/Hz: squared white-noise densities; acc_motion_var_m2_s4: σ_C² (eq. 43);
+    gravity2_m2_s4: g², the squared magnitude of the expected gravity vector (eq. 41).
+    Outputs (S, N, 4), (S, N, 3), (S, N, 7) diagonal of P, flags (S, N) int8 (TRIAD flags,
+    or NOT_PD); a flagged sample is predicted but not corrected.
+    """
+    n_sensors, n = acc.shape[0], acc.shape[1]
+    phi = np.empty((4, 4))
+    qt = np.empty((4, 3))
+    g = np.empty((4, 7))  # top block row of Φ: [Φ_Q, Φ_B] (eq. 26)
+    gp = np.empty((4, 7))
+    xi = np.zeros((3, 3))
+    noise = np.empty((4, 4))
+    chol = np.zeros((4, 4))
+    y = np.empty((4, 7))
+    gain = np.empty((7, 4))
+    zmat = np.empty((7, 7))
+    kv = np.empty((7, 4))
+    dx = np.empty(7)
+    innov = np.empty(4)
+    for s in range(n_sensors):
+        qw, qx, qy, qz = quat_state[s, 0], quat_state[s, 1], quat_state[s, 2], quat_state[s, 3]
+        bx, by, bz = bias_state[s, 0], bias_state[s, 1], bias_state[s, 2]
+        p = cov_state[s]
+        for i in range(n):
+            h = dt[i]
+            flag = OK
+            if h > 0.0:
+                # -- prediction (eqs. 25-31, 47-48) --------------------------------------
+                wx, wy, wz = gyr[s, i, 0] - bx, gyr[s, i, 1] - by, gyr[s, i, 2] - bz  # eq. 17
+                fill_phi_q(wx * h, wy * h, wz * h, phi)
+                fill_qtilde(qw, qx, qy, qz, qt)
+                for r in range(4):
+                    for c in range(4):
+                        g[r, c] = phi[r, c]
+                    for c in range(3):  # Φ_B = -½ T Φ_Q Q̃ (eq. 28 with the period T)
+                        g[r, 4 + c] = -0.5 * h * (
+                            phi[r, 0] * qt[0, c] + phi[r, 1] * qt[1, c]
+                            + phi[r, 2] * qt[2, c] + phi[r, 3] * qt[3, c]
+                        )
+                qw, qx, qy, qz = normalized(
+                    phi[0, 0] * qw + phi[0, 1] * qx + phi[0, 2] * qy + phi[0, 3] * qz,
+                    phi[1, 0] * qw + phi[1, 1] * qx + phi[1, 2] * qy + phi[1, 3] * qz,
+                    phi[2, 0] * qw + phi[2, 1] * qx + phi[2, 2] * qy + phi[2, 3] * qz,
+                    phi[3, 0] * qw + phi[3, 1] * qx + phi[3, 2] * qy + phi[3, 3] * qz,
+                )  # eq. 47
+                _predict_covariance(p, g, gp)
+                # W (eq. 31): rate noise as an angle over the period, Ξ_Ω = n² T per axis
+                for k in range(3):
+                    xi[k, k] = gyr_var[k] * h
+                fill_quat_noise(qw, qx, qy, qz, xi, qt, noise)
+                for r in range(4):
+                    for c in range(4):
+                        p[r, c] += noise[r, c]
+                for k in range(3):
+                    p[4 + k, 4 + k] += bias_var[k] * h  # Ξ_B: bias random walk
+                # -- measurement: TRIAD quaternion (eqs. 10-13, 38) ----------------------
+                res = _triad(acc[s, i, 0], acc[s, i, 1], acc[s, i, 2],
+                             mag[s, i, 0], mag[s, i, 1], mag[s, i, 2], up, north)
+                flag = res[0]
+                if flag == OK:
+                    mw, mx, my, mz = res[1], res[2], res[3], res[4]
+                    if mw * qw + mx * qx + my * qy + mz * qz < 0.0:  # sign nearest q⁻
+                        mw, mx, my, mz = -mw, -mx, -my, -mz
+                    # unit-vector noise = normal noise / |E v| (eqs. 41-44): |E ᴮG| is g,
+                    # known; |E ᴮM| is unknown and the field's own noise is small, so |m|
+                    nm2 = mag[s, i, 0] ** 2 + mag[s, i, 1] ** 2 + mag[s, i, 2] ** 2
+                    var_g = (acc_var / h + acc_motion_var_m2_s4) / gravity2_m2_s4  # eqs. 41-43
+                    var_n = (mag_var / h) / nm2  # eq. 44
+                    fill_triad_cov(res[5], res[6], res[7], res[8], res[9], res[10],
+                                   var_g, var_n, xi)  # eq. 45
+                    fill_quat_noise(qw, qx, qy, qz, xi, qt, noise, 1.0)  # eq. 46
+                    for k in range(3):
+                        for c in range(3):
+                            xi[k, c] = 0.0
+                    innov[0], innov[1], innov[2], innov[3] = mw - qw, mx - qx, my - qy, mz - qz
+                    if _kalman_update(p, noise, innov, chol, y, gain, zmat, kv, dx):
+                        qw, qx, qy, qz = normalized(qw + dx[0], qx + dx[1], qy + dx[2],
+                                                    qz + dx[3])
+                        bx, by, bz = bx + dx[4], by + dx[5], bz + dx[6]
+                    else:
+                        flag = NOT_PD
+            flags[s, i] = flag
+            quat_out[s, i, 0], quat_out[s, i, 1] = qw, qx
+            quat_out[s, i, 2], quat_out[s, i, 3] = qy, qz
+            bias_out[s, i, 0], bias_out[s, i, 1], bias_out[s, i, 2] = bx, by, bz
+            for k in range(7):
+                cov_diag_out[s, i, k] = p[k, k]
+        quat_state[s, 0], quat_state[s, 1], quat_state[s, 2], quat_state[s, 3] = qw, qx, qy, qz
+        bias_state[s, 0], bias_state[s, 1], bias_state[s, 2] = bx, by, bz

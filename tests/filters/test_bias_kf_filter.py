@@ -1,0 +1,244 @@
+"""BiasKalman (003 IV): contract, frames, bias recovery, consistency, covariance health, errors."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from margtrack import frames, sim
+from margtrack import quaternion as quat
+from margtrack.filters.bias_kf import BiasKalman, BiasKalmanParams, BiasKalmanState
+from margtrack.kernels import bias_kf as kernel
+
+G = frames.STANDARD_GRAVITY_M_S2
+
+
+def _noisy_recording(seconds=20.0, rate=100.0, seed=2, frame="ENU"):
+    traj = sim.random_motion(seconds, rate, seed=seed, max_rate_deg_s=150.0)
+    return sim.simulate(
+        traj, frame=frame, gyr_errors=sim.SensorErrors.mems_gyr(),
+        acc_errors=sim.SensorErrors.mems_acc(), mag_errors=sim.SensorErrors.mems_mag(), seed=seed,
+    )
+
+
+def test_update_n_times_equals_run_once():
+    rec = _noisy_recording(3.0)
+    batch = BiasKalman().run(rec)
+    live = BiasKalman(rate_hz=100.0)
+    stepped = np.array([live.update(rec.gyr[i], rec.acc[i], rec.mag[i]) for i in range(300)])
+    np.testing.assert_allclose(stepped, batch.quat[:300], atol=1e-12)
+    part = BiasKalman().run(rec.slice(0, 300))
+    np.testing.assert_allclose(live.state.gyr_bias_rad_s, part.outputs["gyr_bias_rad_s"][-1:],
+                               atol=1e-12)
+    np.testing.assert_allclose(np.diagonal(live.state.cov[0]), part.outputs["cov_diag"][-1],
+                               rtol=1e-12, atol=0)
+
+
+def test_two_half_runs_joined_through_state_equal_one_run():
+    rec = _noisy_recording(4.0)
+    whole = BiasKalman().run(rec)
+    first = BiasKalman()
+    a = first.run(rec.slice(0, 170))
+    second = BiasKalman()
+    second.state = first.state  # resume in a new object
+    b = second.run(rec.slice(170))
+    for key in ("gyr_bias_rad_s", "cov_diag"):
+        np.testing.assert_allclose(
+            np.concatenate([a.outputs[key], b.outputs[key]]), whole.outputs[key],
+            rtol=1e-12, atol=1e-15,
+        )
+    np.testing.assert_allclose(np.concatenate([a.quat, b.quat]), whole.quat, atol=1e-12)
+
+
+@pytest.mark.parametrize("frame", ["ENU", "NED"])
+def test_noise_free_estimate_equals_simulator_truth_in_both_frames(frame):
+    # exact rates and exact TRIAD: the innovation vanishes and the output is the truth
+    rec = sim.simulate(sim.random_motion(20.0, 100.0, seed=3), frame=frame, seed=1)
+    est = BiasKalman(frame=frame).run(rec)
+    assert est.frame == frame
+    assert np.max(quat.angle_between(est.quat, rec.quat_true)) < 1e-10
+    assert np.max(np.abs(est.outputs["gyr_bias_rad_s"])) < 1e-10
+    assert not est.outputs["degenerate"].any()
+
+
+@pytest.mark.parametrize("frame", ["ENU", "NED"])
+def test_noisy_estimate_averages_triad_noise_away_in_both_frames(frame):
+    # white sensor noise only, matched parameters: the filter averages TRIAD's noise
+    rec = sim.simulate(
+        sim.random_motion(30.0, 100.0, seed=4, max_rate_deg_s=150.0), frame=frame,
+        gyr_errors=sim.SensorErrors(noise_density=np.radians(0.005)),
+        acc_errors=sim.SensorErrors(noise_density=150e-6 * G),
+        mag_errors=sim.SensorErrors(noise_density=0.05), seed=4,
+    )
+    p = dataclasses.replace(_matched(), frame=frame)
+    err = quat.angle_between(BiasKalman(p).run(rec).quat, rec.quat_true)
+    err_triad = quat.angle_between(
+        BiasKalman(dataclasses.replace(p, gyr_noise_rad_s_sqrt_hz=1e3)).run(rec).quat,
+        rec.quat_true,
+    )
+    rms, rms_triad = np.sqrt(np.mean(err**2)), np.sqrt(np.mean(err_triad**2))
+    # TRIAD's heading noise is σ_M √rate / (F cos dip) = 0.5/25 rad ≈ 1.1 deg per sample
+    assert np.degrees(rms_triad) == pytest.approx(np.degrees(0.02), rel=0.25)
+    assert rms < 0.2 * rms_triad
+
+
+GYR_NOISE = np.radians(0.005)  # rad/s/√Hz
+
+
+def _static(bias_rad_s, seconds, seed, q0, gyr_noise=GYR_NOISE):
+    return sim.simulate(
+        sim.static(seconds, 100.0, q0=q0), frame="ENU",
+        gyr_errors=sim.SensorErrors(noise_density=gyr_noise, bias=tuple(bias_rad_s)),
+        acc_errors=sim.SensorErrors(noise_density=150e-6 * G),
+        mag_errors=sim.SensorErrors(noise_density=0.05), seed=seed,
+    )
+
+
+def _matched(walk=1e-5):
+    return BiasKalmanParams(
+        gyr_noise_rad_s_sqrt_hz=np.radians(0.005), gyr_bias_walk_rad_s_sqrt_s=walk,
+        acc_noise_m_s2_sqrt_hz=150e-6 * G, acc_motion_fraction=0.0, mag_noise_ut_sqrt_hz=0.05,
+    )
+
+
+def _steady_state_bias_std(q0, p, rate=100.0):
+    """Steady-state bias std (3,) of the linear error-state model (θ, b), by the DARE.
+
+    θ_k = θ_{k-1} - T b_{k-1} + w, b_k = b_{k-1} + v, z = θ + e with e ~ Ξθ (eq. 45) at q0.
+    """
+    t = 1.0 / rate
+    z = quat.rotate_inverse(q0, frames.up("ENU"))
+    n = quat.rotate_inverse(q0, frames.mag_reference("ENU", sim.DEFAULT_DIP_DEG))
+    xi = np.empty((3, 3))
+    kernel.fill_triad_cov(*z, *n, p.acc_noise_m_s2_sqrt_hz**2 * rate / G**2,
+                          p.mag_noise_ut_sqrt_hz**2 * rate / sim.DEFAULT_FIELD_UT**2, xi)
+    a = np.block([[np.eye(3), -t * np.eye(3)], [np.zeros((3, 3)), np.eye(3)]])
+    h = np.c_[np.eye(3), np.zeros((3, 3))]
+    q = np.diag([p.gyr_noise_rad_s_sqrt_hz**2 * t] * 3 + [p.gyr_bias_walk_rad_s_sqrt_s**2 * t] * 3)
+    prior = scipy.linalg.solve_discrete_are(a.T, h.T, q, xi)
+    post = prior - prior @ h.T @ np.linalg.solve(h @ prior @ h.T + xi, h @ prior)
+    return np.sqrt(np.diag(post)[3:])
+
+
+def test_constant_gyro_bias_is_recovered_from_static_data_within_the_riccati_bound():
+    q0 = quat.from_euler([0.7, 0.2, -0.3])
+    bias = np.radians([0.5, -0.3, 0.4])
+    p = _matched()
+    est = BiasKalman(p).run(_static(bias, 90.0, 1, q0))
+    sigma = _steady_state_bias_std(q0, p)
+    # the filter's own covariance reaches the Riccati steady state of the same model
+    np.testing.assert_allclose(np.sqrt(est.outputs["cov_diag"][-1, 4:]), sigma, rtol=0.01)
+    # truth has no bias walk, so the error is within the filter's (conservative) 4σ
+    assert np.all(np.abs(est.outputs["gyr_bias_rad_s"][-1] - bias) < 4.0 * sigma)
+    assert np.all(np.abs(est.outputs["gyr_bias_rad_s"][0]) == 0.0)
+
+
+def test_filter_is_consistent_when_its_noise_model_matches_the_simulation():
+    # normalised bias errors of a consistent filter have unit variance; with the truth
+    # lacking the modelled bias walk they are a little smaller, never much larger
+    q0 = quat.from_euler([-1.2, 0.4, 0.1])
+    z = []
+    for seed in range(4):
+        bias = np.radians([0.4, -0.2, 0.3])
+        est = BiasKalman(_matched()).run(_static(bias, 40.0, seed, q0))
+        err = est.outputs["gyr_bias_rad_s"] - bias
+        z.append(err[1000::200] / np.sqrt(est.outputs["cov_diag"][1000::200, 4:]))
+    rms = np.sqrt(np.mean(np.concatenate(z) ** 2, axis=0))
+    assert np.all(rms < 1.5)
+    assert np.all(rms > 0.3)
+
+
+def test_covariance_stays_symmetric_positive_definite_over_one_hour():
+    traj = sim.random_motion(3600.0, 25.0, seed=7, max_rate_deg_s=200.0, bandwidth_hz=1.0,
+                             translation_m=0.05)
+    rec = sim.simulate(traj, frame="ENU", gyr_errors=sim.SensorErrors.mems_gyr(),
+                       acc_errors=sim.SensorErrors.mems_acc(),
+                       mag_errors=sim.SensorErrors.mems_mag(), seed=7)
+    est = BiasKalman()
+    for chunk in np.array_split(np.arange(rec.n_samples), 6):
+        est.run(rec.slice(chunk[0], chunk[-1] + 1))
+        p = est.state.cov[0]
+        assert np.max(np.abs(p - p.T)) <= 1e-12 * np.max(np.abs(p))
+        eig = np.linalg.eigvalsh(p)
+        assert eig[0] > 0.0
+        assert eig[0] > 1e-12 * eig[-1]  # far above rounding (~1e-16 of the largest)
+    assert np.all(np.isfinite(est.state.quat))
+
+
+def test_degenerate_samples_are_flagged_and_only_predicted():
+    rec = _noisy_recording(1.0)
+    acc, mag = rec.acc.copy(), rec.mag.copy()
+    acc[40] = 0.0
+    mag[50] = 0.0
+    acc[60] = mag[60]  # parallel to the field
+    est = BiasKalman().run(gyr=rec.gyr, acc=acc, mag=mag, t=rec.t)
+    flags = est.outputs["degenerate"]
+    assert (flags[40], flags[50], flags[60]) == (kernel.ZERO_ACC, kernel.ZERO_MAG, kernel.PARALLEL)
+    assert np.count_nonzero(flags) == 3
+    for i in (40, 50, 60):  # prediction only: q ⊗ exp((ω - b) T / 2), bias unchanged
+        b = est.outputs["gyr_bias_rad_s"][i - 1]
+        expected = quat.integrate(est.quat[i - 1], rec.gyr[i] - b, 0.01)
+        np.testing.assert_allclose(est.quat[i], expected, atol=1e-14)
+        np.testing.assert_array_equal(est.outputs["gyr_bias_rad_s"][i], b)
+
+
+def test_measurement_sign_follows_the_prediction_through_half_turns():
+    # start at -q0 and turn through 180 deg: TRIAD gives w >= 0, the filter keeps its sign
+    steps = [sim.Rotate((1.0, 0.0, 0.0), 360.0, 90.0)]
+    rec = sim.simulate(sim.rotation_sequence(steps, 100.0), frame="ENU", seed=0)
+    est = BiasKalman()
+    est.reset(-rec.quat_true[0])
+    out = est.run(rec)
+    assert np.max(quat.angle_between(out.quat, rec.quat_true)) < 1e-10
+    assert np.min(np.sum(out.quat[1:] * out.quat[:-1], axis=1)) > 0.99  # no sign jumps
+    assert out.quat[0] @ rec.quat_true[0] < 0.0
+
+
+def test_several_sensors_in_one_run_equal_each_sensor_alone():
+    recs = [_noisy_recording(2.0, seed=s) for s in (1, 2)]
+    t = recs[0].t
+    both = BiasKalman().run(gyr=np.stack([r.gyr for r in recs]),
+                            acc=np.stack([r.acc for r in recs]),
+                            mag=np.stack([r.mag for r in recs]), t=t)
+    for s, r in enumerate(recs):
+        alone = BiasKalman().run(gyr=r.gyr, acc=r.acc, mag=r.mag, t=t)
+        np.testing.assert_allclose(both.quat[s], alone.quat, atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("gyr_noise_rad_s_sqrt_hz", 0.0, "gyr_noise_rad_s_sqrt_hz must be a finite number > 0"),
+        ("gyr_noise_rad_s_sqrt_hz", (0.1, 0.2), "one per body axis"),
+        ("gyr_bias_walk_rad_s_sqrt_s", -1e-5, "gyr_bias_walk_rad_s_sqrt_s must be .* >= 0"),
+        ("acc_noise_m_s2_sqrt_hz", float("nan"), r"acc_noise_m_s2_sqrt_hz must .* \(0, inf\]"),
+        ("acc_motion_fraction", 1.5, r"acc_motion_fraction must .* \[0, 1\]"),
+        ("mag_noise_ut_sqrt_hz", -0.1, "mag_noise_ut_sqrt_hz"),
+        ("init_angle_std_rad", 4.0, r"init_angle_std_rad must .* \(0, 3.14159"),
+        ("frame", "NWU", "frame must be 'NED' or 'ENU'"),
+    ],
+)
+def test_bad_parameters_are_refused_with_the_allowed_range(field, value, message):
+    with pytest.raises(ValueError, match=message):
+        BiasKalmanParams(**{field: value})
+
+
+def test_per_axis_noise_densities_are_accepted():
+    p = BiasKalmanParams(gyr_noise_rad_s_sqrt_hz=(1e-3, 2e-3, 3e-3))
+    gyr, walk = p.axis_variances()
+    np.testing.assert_allclose(gyr, [1e-6, 4e-6, 9e-6])
+    np.testing.assert_allclose(walk, np.full(3, p.gyr_bias_walk_rad_s_sqrt_s**2))
+
+
+def test_bad_input_is_refused():
+    rec = _noisy_recording(0.5)
+    with pytest.raises(ValueError, match="needs a magnetometer"):
+        BiasKalman().run(rec.without_mag())
+    est = BiasKalman()
+    est.run(rec)
+    est.state = BiasKalmanState(quat=np.array([[1.0, 0, 0, 0]]), t_last_s=10.0)
+    with pytest.raises(ValueError, match=r"the state must hold gyr_bias_rad_s \(1, 3\)"):
+        est.run(gyr=rec.gyr, acc=rec.acc, mag=rec.mag, t=rec.t + 20.0)
