@@ -208,6 +208,7 @@ class Estimator(ABC, Generic[P, S]):
                 f"got {type(base).__name__}"
             )
         self._params: P = dataclasses.replace(base, **param_values) if param_values else base
+        self._params_dict = self._params.as_dict()
         if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
             raise ValueError(f"rate_hz must be a finite number > 0, got {rate_hz}")
         self.rate_hz = rate_hz
@@ -226,6 +227,7 @@ class Estimator(ABC, Generic[P, S]):
         if value.frame != self._params.frame and self._state is not None:
             raise ValueError("frame cannot change while running; reset() first")
         self._params = value
+        self._params_dict = value.as_dict()
 
     def set_params(self, **values: Any) -> None:
         """Change parameters between samples; validated, they take effect at the next sample."""
@@ -410,7 +412,7 @@ class Estimator(ABC, Generic[P, S]):
             raise ValueError(f"t must have shape ({n},), got {t.shape}")
         if not np.all(np.isfinite(t)):
             raise ValueError(f"t has a non-finite value at sample {int(np.argmin(np.isfinite(t)))}")
-        steps = np.diff(t)
+        steps = np.diff(t) if n > 1 else t[:0]
         if np.any(steps <= 0):
             i = int(np.flatnonzero(steps <= 0)[0]) + 1
             raise ValueError(
@@ -434,7 +436,8 @@ class Estimator(ABC, Generic[P, S]):
                 check_unit_magnitudes(x.gyr[s] if x.gyr is not None else np.zeros((0, 3)), x.acc[s])
         n_sensors = x.acc.shape[0]
         dt = np.empty_like(x.t)
-        dt[1:] = np.diff(x.t)
+        if dt.shape[0] > 1:
+            dt[1:] = np.diff(x.t)
         state = self._state
         if state is not None and state.quat.shape[0] != n_sensors:
             raise ValueError(
@@ -463,7 +466,7 @@ class Estimator(ABC, Generic[P, S]):
             t=x.t.copy(),
             frame=self._params.frame,
             method=self.name,
-            params=self._params.as_dict(),
+            params=dict(self._params_dict),
             outputs=outputs,
         )
 
