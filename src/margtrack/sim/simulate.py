@@ -160,23 +160,20 @@ def simulate_default(
     errors, otherwise none. Dip and field are the defaults of :func:`simulate`. Used by the
     README's quick demo and ``margtrack simulate``; the 100 Hz default is only this demo's.
     """
-    trajectory = random_motion(
-        duration_s, rate_hz, seed, max_rate_deg_s=200.0, bandwidth_hz=2.0, translation_m=0.02
+    return simulate_motion(
+        "random", duration_s=duration_s, rate_hz=rate_hz, seed=seed, frame=frame, noise=noise
     )
-    errors = (
-        (SensorErrors.mems_gyr(), SensorErrors.mems_acc(), SensorErrors.mems_mag())
-        if noise
-        else (None, None, None)
-    )
-    return simulate(
-        trajectory,
-        frame=frame,
-        gyr_errors=errors[0],
-        acc_errors=errors[1],
-        mag_errors=errors[2],
-        seed=seed,
-        name=f"sim-random-{seed}",
-    )
+
+
+def _mems_errors(noise: bool) -> dict[str, SensorErrors | None]:
+    """The consumer-MEMS error presets for gyr, acc and mag, or perfect sensors."""
+    if not noise:
+        return {"gyr_errors": None, "acc_errors": None, "mag_errors": None}
+    return {
+        "gyr_errors": SensorErrors.mems_gyr(),
+        "acc_errors": SensorErrors.mems_acc(),
+        "mag_errors": SensorErrors.mems_mag(),
+    }
 
 
 #: Motions :func:`simulate_motion` knows, by name.
@@ -202,25 +199,19 @@ def simulate_motion(
     if motion not in MOTIONS:
         raise ValueError(f"motion must be one of {', '.join(MOTIONS)}, got {motion!r}")
     if motion == "random":
-        rec = simulate_default(duration_s, rate_hz, seed, frame, noise)
-        return rec if with_mag else rec.without_mag()
-    if motion == "limb":
+        trajectory = random_motion(
+            duration_s, rate_hz, seed, max_rate_deg_s=200.0, bandwidth_hz=2.0, translation_m=0.02
+        )
+    elif motion == "limb":
         trajectory = limb_swing(duration_s, rate_hz, frame=frame)
     elif motion == "static":
         trajectory = static(duration_s, rate_hz)
     else:
         trajectory = constant_rotation((1.0, 0.0, 0.0), 10.0, duration_s, rate_hz)
-    errors = (
-        (SensorErrors.mems_gyr(), SensorErrors.mems_acc(), SensorErrors.mems_mag())
-        if noise
-        else (None, None, None)
-    )
     return simulate(
         trajectory,
         frame=frame,
-        gyr_errors=errors[0],
-        acc_errors=errors[1],
-        mag_errors=errors[2],
+        **_mems_errors(noise),
         seed=seed,
         with_mag=with_mag,
         name=f"sim-{motion}-{seed}",
