@@ -31,6 +31,18 @@ def _mount_calibration() -> None:
 
 _mount_calibration()
 
+
+def _mount_live() -> None:
+    from margtrack.live.cli import live_command
+
+    app.command(
+        name="live",
+        help="Track sensors live in a browser page (simulator, replay, UDP, serial).",
+    )(live_command)
+
+
+_mount_live()
+
 F = TypeVar("F", bound=Callable[..., Any])
 
 MethodOption = Annotated[
