@@ -21,7 +21,7 @@ from margtrack import frames, quaternion
 from margtrack.recording import Recording
 
 if TYPE_CHECKING:  # pragma: no cover
-    from margtrack import bench, body, calibration, estimators, filters, io, methods, sim
+    from margtrack import bench, body, calibration, estimators, filters, io, live, methods, sim
     from margtrack.bench.metrics import error_series, summarize
     from margtrack.estimators.base import Estimate, Estimator
     from margtrack.methods import available as available_methods
@@ -29,7 +29,17 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __version__ = "0.1.0"
 
-_LAZY_MODULES = {"bench", "body", "calibration", "estimators", "filters", "io", "methods", "sim"}
+_LAZY_MODULES = {
+    "bench",
+    "body",
+    "calibration",
+    "estimators",
+    "filters",
+    "io",
+    "live",
+    "methods",
+    "sim",
+}
 _LAZY_NAMES = {
     "Estimate": ("margtrack.estimators.base", "Estimate"),
     "Estimator": ("margtrack.estimators.base", "Estimator"),
@@ -53,6 +63,7 @@ __all__ = [
     "filters",
     "frames",
     "io",
+    "live",
     "methods",
     "quaternion",
     "sim",
