@@ -14,6 +14,7 @@ The page is served on http://127.0.0.1:PORT (8080 by default); stop with Ctrl-C.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 from collections.abc import Callable
@@ -151,11 +152,9 @@ def _headless(source: Source, method: str, params: list[str], calibrate: bool, h
         engine.request_calibration()
     end = math.inf if duration is None else time.perf_counter() + duration
     with engine.start(source):
-        try:
+        with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C ends the run cleanly
             while engine.running and time.perf_counter() < end:
                 engine.wait(min(0.2, max(end - time.perf_counter(), 0.0)))
-        except KeyboardInterrupt:
-            pass
     stats = engine.stats()
     console.print(f"{source.info.description}: {source.info.n_sensors} sensors, method "
                   f"{engine.method}")

@@ -21,6 +21,7 @@ pose when full.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import queue
@@ -250,10 +251,8 @@ class Engine:
                     q.put_nowait(pose)
                     return
                 except queue.Full:
-                    try:
+                    with contextlib.suppress(queue.Empty):  # emptied meanwhile
                         q.get_nowait()
-                    except queue.Empty:
-                        pass
 
         self.subscribe(put)
         return q

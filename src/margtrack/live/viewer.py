@@ -20,6 +20,7 @@ owns all three and stops them in :meth:`LiveSession.stop`.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import threading
@@ -338,10 +339,9 @@ def run_live(
         return session
     end = math.inf if duration_s is None else time.perf_counter() + duration_s
     try:
-        while time.perf_counter() < end:
-            time.sleep(min(0.2, max(end - time.perf_counter(), 0.0)))
-    except KeyboardInterrupt:
-        pass
+        with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C ends the session cleanly
+            while time.perf_counter() < end:
+                time.sleep(min(0.2, max(end - time.perf_counter(), 0.0)))
     finally:
         session.stop()
     return session
