@@ -194,3 +194,10 @@ def test_frame_parameter_changes_the_output_frame_consistently():
     ned = methods.create("gyro", {"frame": "NED"}).run(gyr=gyr, acc=acc, mag=mag, rate_hz=50.0)
     converted = enu.in_frame("NED")
     np.testing.assert_allclose(quat.angle_between(converted.quat, ned.quat), 0.0, atol=1e-7)
+
+
+def test_per_axis_tuple_parameters_parse_from_the_command_line():
+    est = methods.create("ekf", ["tau_s=0.2,0.3,0.4", "gn_max_iterations=3"])
+    assert est.params.tau_s == (0.2, 0.3, 0.4)
+    assert est.params.gn_max_iterations == 3
+    assert methods.create("ekf", ["tau_s=0.25"]).params.tau_s == 0.25

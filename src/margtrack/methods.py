@@ -20,6 +20,7 @@ from margtrack.estimators.quest import Quest
 from margtrack.estimators.triad import Triad
 from margtrack.filters.bias_kf import BiasKalman
 from margtrack.filters.complementary import Bachmann, BachmannAccMag
+from margtrack.filters.ekf import MarinsEkf
 from margtrack.filters.gradient import Gradient
 from margtrack.filters.gyro import GyroIntegration
 from margtrack.filters.robust import Robust
@@ -42,6 +43,7 @@ _CLASSES: tuple[type[Estimator], ...] = (
     GaussNewton,
     Gradient,
     GyroIntegration,
+    MarinsEkf,
     Newton,
     Quest,
     Robust,
@@ -80,7 +82,9 @@ def _coerce(value: Any, annotation: Any, name: str) -> Any:
         args = [a for a in typing.get_args(hint) if a is not type(None)]
         if value.lower() in ("none", "null"):
             return None
-        hint = args[0] if args else str
+        # "1,2,3" for a union that admits a tuple (per-axis values), else the first type
+        tuples = [a for a in args if a is tuple or typing.get_origin(a) is tuple]
+        hint = tuples[0] if tuples and "," in value else (args[0] if args else str)
     if hint is bool:
         low = value.lower()
         if low in ("1", "true", "yes", "on"):

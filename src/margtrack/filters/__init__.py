@@ -2,6 +2,7 @@
 
 from margtrack.filters.bias_kf import BiasKalman, BiasKalmanParams
 from margtrack.filters.complementary import Bachmann, BachmannAccMag, BachmannParams
+from margtrack.filters.ekf import MarinsEkf, MarinsEkfParams
 from margtrack.filters.gradient import Gradient, GradientParams, align_to_gyro
 from margtrack.filters.gyro import GyroIntegration, GyroParams
 from margtrack.filters.robust import Robust, RobustParams
@@ -16,6 +17,8 @@ __all__ = [
     "GradientParams",
     "GyroIntegration",
     "GyroParams",
+    "MarinsEkf",
+    "MarinsEkfParams",
     "Robust",
     "RobustParams",
     "align_to_gyro",

@@ -30,7 +30,13 @@ class ExperimentResult:
 Experiment = Callable[[Path, bool], ExperimentResult]
 
 # experiment modules, one per issue/paper; each defines EXPERIMENTS
-_MODULES: tuple[str, ...] = ("complementary", "gradient", "kalman_ang", "single_frame")
+_MODULES: tuple[str, ...] = (
+    "complementary",
+    "gradient",
+    "kalman_ang",
+    "kalman_marins",
+    "single_frame",
+)
 
 
 def _registry() -> dict[str, Experiment]:

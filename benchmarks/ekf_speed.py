@@ -1,0 +1,128 @@
+"""Speed of Marins' EKF (``ekf``), approaches 2 and 1, next to ``ahrs.filters.EKF``.
+
+Run ``python benchmarks/ekf_speed.py [--samples N] [--ahrs-samples N] [--calls N]``.
+
+Input: the 16 BROAD trials of ../shared/data/broad concatenated (858,735 samples at 286 Hz;
+cut to ``--samples``), or a simulated random motion if the data are absent. Printed, best
+of 3 with compilation excluded:
+
+- batch throughput, samples/s: margtrack ``MarinsEkf.run`` with approach 2 (gyro +
+  Gauss-Newton quaternion, ``H = I``; 001's choice) and approach 1 (nine nonlinear
+  outputs) for 1 sensor, approach 2 for 8 sensors in one call, and approach 2 with one
+  Gauss-Newton iteration per sample; ``ahrs.filters.EKF`` (pure Python, a 4-state
+  quaternion EKF with acc/mag outputs, MARG because ``mag`` is given to its batch
+  constructor) on the first ``--ahrs-samples`` only (about 0.1 ms per sample);
+- per-call cost of one live sample, µs: ``MarinsEkf.update`` and ahrs ``EKF.update``
+  (which uses the magnetometer only when the object's ``mag`` attribute is set: it is);
+
+with ratios to margtrack's one-sensor approach-2 ``run``. The cost of approach 1 relative
+to approach 2 is 001's argument for approach 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from margtrack.bench.speed import Throughput, measure
+from margtrack.filters.ekf import MarinsEkf, MarinsEkfParams
+
+BROAD = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "broad"
+RATE_HZ = 285.714
+N_SENSORS = 8
+
+
+def load_input(n: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """gyr rad/s, acc m/s², mag µT, each (n, 3) C-contiguous, and where they come from."""
+    if (BROAD / "trials.json").is_file():
+        from margtrack.io import broad_trials, read_broad
+
+        recs = [read_broad(t.path) for t in broad_trials(BROAD)]
+        parts = [np.concatenate([getattr(r, k) for r in recs]) for k in ("gyr", "acc", "mag")]
+        source = f"{len(recs)} BROAD trials ({parts[0].shape[0]} samples)"
+    else:
+        from margtrack import sim
+
+        rec = sim.simulate_motion("random", duration_s=3000.0, rate_hz=RATE_HZ, seed=0)
+        parts = [rec.gyr, rec.acc, rec.mag]
+        source = "a simulated random motion"
+    n = parts[0].shape[0] if n is None else min(n, parts[0].shape[0])
+    gyr, acc, mag = (np.ascontiguousarray(p[:n]) for p in parts)
+    return gyr, acc, mag, source
+
+
+def _table(rows: list[tuple[Throughput, str]], ref: Throughput, ref_name: str) -> None:
+    width = max(len(r.label) for r, _ in rows)
+    print(f"{'':{width}}  {'samples/s':>12}  {'us/sample':>10}  {'vs ' + ref_name:>14}  note")
+    for r, note in rows:
+        print(f"{r.label:{width}}  {r.samples_per_s:12.4g}  {r.us_per_sample:10.4g}  "
+              f"{r.ratio_to(ref):14.3g}  {note}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", type=int, default=None, help="default: all")
+    parser.add_argument("--ahrs-samples", type=int, default=20_000)
+    parser.add_argument("--calls", type=int, default=2_000, help="live update() calls timed")
+    args = parser.parse_args()
+    gyr, acc, mag, source = load_input(args.samples)
+    n = gyr.shape[0]
+    t = np.arange(n) / RATE_HZ
+    print(f"input: {source}, {n} samples used")
+
+    def batch(params: MarinsEkfParams, label: str) -> Throughput:
+        return measure(label, lambda: MarinsEkf(params).run(gyr=gyr, acc=acc, mag=mag, t=t), n)
+
+    defaults = MarinsEkfParams()
+    two = batch(defaults, "margtrack MarinsEkf.run, approach 2")
+    one = batch(MarinsEkfParams(approach=1), "margtrack MarinsEkf.run, approach 1")
+    single = batch(MarinsEkfParams(gn_max_iterations=1), "approach 2, 1 Gauss-Newton step")
+    iterations = MarinsEkf().run(gyr=gyr, acc=acc, mag=mag, t=t).outputs["iterations"]
+    m = min(n, 100_000)
+    stack = [np.ascontiguousarray(np.broadcast_to(x[:m], (N_SENSORS, m, 3)))
+             for x in (gyr, acc, mag)]
+    multi = measure(f"approach 2, {N_SENSORS} sensors", lambda: MarinsEkf().run(
+        gyr=stack[0], acc=stack[1], mag=stack[2], t=t[:m]), N_SENSORS * m)
+
+    from ahrs.filters import EKF
+
+    k = min(n, args.ahrs_samples)
+    ahrs_batch = measure("ahrs EKF (batch constructor, MARG)", lambda: EKF(
+        gyr=gyr[:k], acc=acc[:k], mag=mag[:k], frequency=RATE_HZ), k, repeats=1)
+
+    calls = min(args.calls, n)
+    live = MarinsEkf(rate_hz=RATE_HZ)
+
+    def run_live() -> None:
+        live.reset()
+        for i in range(calls):
+            live.update(gyr[i], acc[i], mag[i])
+
+    update = measure("margtrack MarinsEkf.update", run_live, calls)
+    ekf = EKF(frequency=RATE_HZ)
+    ekf.mag = mag[:calls]  # ahrs's h() switches to MARG when its mag attribute is set
+
+    def run_ahrs_live() -> None:
+        q = np.array([1.0, 0.0, 0.0, 0.0])
+        for i in range(calls):
+            q = ekf.update(q, gyr[i], acc[i], mag[i])
+
+    ahrs_update = measure("ahrs EKF.update", run_ahrs_live, calls)
+
+    print(f"\nbatch (compilation excluded; approach 2 default: at most "
+          f"{defaults.gn_max_iterations} Gauss-Newton steps, {iterations.mean():.2f} on average)")
+    _table([
+        (two, ""),
+        (one, f"approach 1 costs {two.samples_per_s / one.samples_per_s:.2f} x approach 2"),
+        (single, ""),
+        (multi, f"{N_SENSORS} x {m} samples"),
+        (ahrs_batch, f"first {k} samples only"),
+    ], two, "approach 2")
+    print("\nlive, one sample per call")
+    _table([(update, "validation, state copy, kernel"), (ahrs_update, "")], update, "update")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,277 @@
+"""Marins' quaternion extended Kalman filter for MARG sensors (001), both approaches.
+
+State: the body angular rate ``ω`` (3) and the quaternion ``q`` (4), with a 7x7 covariance
+(001 section 4.1; margtrack's order ``[ω_x, ω_y, ω_z, q_w, q_x, q_y, q_z]``, 001 puts the
+scalar ``d`` last). Process model: a first-order rate with time constant τ per axis driven
+by white noise, and quaternion kinematics with the normalisation term (eqs. 9-15), in the
+paper's additive 4-D quaternion form (not an error-state filter: STYLE 12). The
+discretisation (exact for the rate and its integral, exact flow of eqs. 12-15 along the
+noise-free rate) and the Jacobians are in :mod:`margtrack.kernels.ekf`.
+
+- ``approach=2`` (default, the paper's choice, 001 4.3): the measurement is the gyroscope
+  rate plus the Gauss-Newton quaternion of the accelerometer and magnetometer (001 eqs.
+  20-23), started from the predicted quaternion with a small iteration cap (001 5.1: when
+  tracking, one step is usually enough) and signed nearest the prediction; ``H = I₇``.
+- ``approach=1`` (001 4.1): the nine outputs, rate, gravity and field directions in body
+  coordinates (eq. 19's form; the printed equation turns the reference the wrong way, see
+  the kernel), with their Jacobian.
+
+After each update ``q`` is normalised (001 Fig. 3); the covariance is updated in Joseph
+form and mirrored, so it stays symmetric and positive definite.
+
+Two properties of the model as 001 writes it:
+
+- the gyroscope measures the rate *state*, the rate at the sample time, while the
+  prediction integrates the rate from the previous sample; under margtrack's timing
+  (gyro sample ``i`` is the rate over ``(t[i-1], t[i]]``) this leaves an orientation lag of
+  at most half a sample of rotation, ``dt |ω| / 2`` (whose rms over BROAD's movement
+  samples is 0.07-0.73 deg per trial, 0.36 deg on average);
+- the quaternion has no process noise of its own: its uncertainty grows through the rate
+  model, whose white driving noise makes the angle within one interval uncertain by
+  ``σ² dt³ / (12 τ²)`` rad² (given the rate at both ends). At the defaults that is 250
+  (286 Hz) to 2000 (100 Hz) times the gyroscope noise's share ``dt σ_g²``, so the
+  correction's time constant, and the best noise parameters, depend on the sample rate
+  (at the defaults a 1 deg offset decays by 1/e in 3.3 s at 100 Hz and 9.3 s at
+  286 Hz). Tune at the rate you run at.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from margtrack import frames
+from margtrack.estimators.base import Estimator, Params, State
+from margtrack.estimators.prefilter import check_dip_deg, dip_rad_or_nan
+from margtrack.frames import STANDARD_GRAVITY_M_S2
+from margtrack.kernels import ekf as kernel
+
+Array = NDArray[np.float64]
+PerAxis = float | tuple[float, float, float]
+
+__all__ = ["MarinsEkf", "MarinsEkfParams", "MarinsEkfState", "initial_covariance"]
+
+
+def _per_axis(value: PerAxis, name: str) -> float | tuple[float, ...]:
+    """A positive finite number, or three of them (x, y, z body axes)."""
+    arr = None if isinstance(value, (str, bool)) else np.asarray(value, dtype=np.float64)
+    ok = arr is not None and arr.shape in ((), (3,)) and bool(np.all(np.isfinite(arr)))
+    if not (ok and bool(np.all(arr > 0.0))):
+        raise ValueError(
+            f"{name} must be a finite number > 0 (or three of them, one per body axis), "
+            f"got {value!r}"
+        )
+    return float(arr) if arr.ndim == 0 else tuple(float(v) for v in arr)
+
+
+def _positive(value: float, name: str, high: float = math.inf) -> float:
+    x = float(value) if not isinstance(value, (str, bool)) else math.nan
+    if not (math.isfinite(x) and 0.0 < x <= high):
+        raise ValueError(f"{name} must be a finite number in (0, {high:g}], got {value!r}")
+    return x
+
+
+@dataclass(frozen=True)
+class MarinsEkfParams(Params):
+    """Parameters of Marins' EKF: the process model, noise densities and the fit.
+
+    Noise is given as white-noise densities, so one set works at any sample rate: a
+    sample's measurement variance is ``density² / dt``. Only ratios matter to the gains:
+    raising ``quat_noise_per_sqrt_hz`` (or the acc/mag noise for approach 1) makes the
+    filter trust the gyroscope longer; raising ``rate_noise_rad_s_sqrt_hz`` lets the rate
+    state follow the gyroscope more closely.
+
+    Defaults: the one set for all 16 BROAD trials (286 Hz) that
+    :func:`margtrack.bench.tune.tune` found best. τ and the driving noise follow 001's rule
+    (match the spectrum of the rates of normal motion): BROAD's gyroscope signals have a
+    correlation time of about 0.3 s (lag 0.1 s) and an rms of 1.85 rad/s, so
+    ``τ = 0.3`` s and ``σ = 1.85 √(2τ) ≈ 1.4`` rad/s/√Hz. Tuned on that (approach 2):
+    ``quat_noise_per_sqrt_hz`` in {0.018, ..., 0.03}, ``gyr_noise_rad_s_sqrt_hz`` in
+    {3e-4, 1e-3, 3e-3}, ``mag_weight`` in {0.8, 1, 1.25}, ``gn_max_iterations`` in {1, 2, 3}:
+    mean total RMSE 5.70 deg (heading 3.72, inclination 4.14); ahrs's Madgwick with one
+    tuned β: 4.88 deg. The optimum is flat in that grid (5.70-5.75 deg for its 12 best
+    points). Approach 1's ``acc_noise_m_s2_sqrt_hz`` and ``mag_noise_ut_sqrt_hz`` were
+    tuned with the same process parameters (grids {0.1, ..., 0.2} and {0.55, ..., 0.8}):
+    5.59 deg.
+
+    approach : 2 (default, 001's choice: gyro + Gauss-Newton quaternion, ``H = I``) or 1
+        (the nine nonlinear outputs).
+    tau_s : τ, time constant of the first-order rate model (001 eqs. 9-11), s, > 0; a
+        number or one per body axis. The rate decays towards 0 with it between samples.
+    rate_noise_rad_s_sqrt_hz : density of the white noise ``w_r`` driving the rate model
+        (001 Fig. 1, ``ω̇ = (-ω + w_r)/τ``), rad/s/√Hz, > 0; a number or one per axis. The
+        rate's stationary std is ``density / √(2τ)``.
+    gyr_noise_rad_s_sqrt_hz : gyroscope measurement noise density, rad/s/√Hz, > 0; a
+        number or one per axis.
+    quat_noise_per_sqrt_hz : noise density of each component of the Gauss-Newton
+        quaternion (approach 2), 1/√Hz (the quaternion is dimensionless; a component error
+        ε is a rotation of about 2ε rad), > 0. The paper's additive 4-D form, ``R = r I₄``.
+    acc_noise_m_s2_sqrt_hz : accelerometer noise density (approach 1), m/s²/√Hz, > 0;
+        divided by ``gravity_m_s2`` for the unit gravity direction. Linear acceleration
+        belongs in it.
+    mag_noise_ut_sqrt_hz : magnetometer noise density (approach 1), in the magnetometer's
+        unit (µT) per √Hz, > 0; divided by each sample's field norm.
+    mag_weight : ρ, weight of the magnetic residual in the Gauss-Newton fit (000 eq. 17),
+        > 0; 1 is 001's equal weighting, lower lets the field pull less on inclination.
+    gn_tolerance : Gauss-Newton stopping criterion on Q = |ε_g|² + ρ²|ε_m|² or its change
+        over an update (dimensionless, unit vectors), >= 0; default 1e-14, a residual of
+        1e-7 (with the 1e-10 of ``gauss-newton`` the measured quaternion of ideal data
+        stops ~5e-6 from the truth, which the filter then inherits).
+    gn_max_iterations : cap on Gauss-Newton updates per sample, integer in [1, 1000]. The
+        fit starts from the prediction; on real data (inconsistent vectors) it converges
+        only linearly, so the cap, not the tolerance, usually ends it.
+    dip_deg : magnetic dip of the reference field, deg, positive down, in [-90, 90]; None
+        (default): measured from each sensor's first valid sample.
+    gravity_m_s2 : gravity magnitude for approach 1's accelerometer noise, m/s², > 0.
+    init_rate_std_rad_s : initial rate uncertainty per axis, rad/s, > 0.
+    init_quat_std : initial uncertainty of each quaternion component, in (0, 2].
+    """
+
+    approach: int = 2
+    tau_s: PerAxis = 0.3
+    rate_noise_rad_s_sqrt_hz: PerAxis = 1.4
+    gyr_noise_rad_s_sqrt_hz: PerAxis = 3e-4
+    quat_noise_per_sqrt_hz: float = 0.022
+    acc_noise_m_s2_sqrt_hz: float = 0.14
+    mag_noise_ut_sqrt_hz: float = 0.66
+    mag_weight: float = 1.0
+    gn_tolerance: float = 1e-14
+    gn_max_iterations: int = 2
+    dip_deg: float | None = None
+    gravity_m_s2: float = STANDARD_GRAVITY_M_S2
+    init_rate_std_rad_s: float = 1.0
+    init_quat_std: float = 0.5
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        set_ = object.__setattr__
+        if isinstance(self.approach, bool) or self.approach not in (1, 2):
+            raise ValueError(f"approach must be 1 or 2, got {self.approach!r}")
+        set_(self, "approach", int(self.approach))
+        for name in ("tau_s", "rate_noise_rad_s_sqrt_hz", "gyr_noise_rad_s_sqrt_hz"):
+            set_(self, name, _per_axis(getattr(self, name), name))
+        for name in ("quat_noise_per_sqrt_hz", "acc_noise_m_s2_sqrt_hz",
+                     "mag_noise_ut_sqrt_hz", "mag_weight", "gravity_m_s2",
+                     "init_rate_std_rad_s"):
+            set_(self, name, _positive(getattr(self, name), name))
+        set_(self, "init_quat_std", _positive(self.init_quat_std, "init_quat_std", 2.0))
+        tol = self.gn_tolerance
+        if isinstance(tol, (str, bool)) or not (math.isfinite(tol) and tol >= 0.0):
+            raise ValueError(f"gn_tolerance must be a finite number >= 0, got {tol!r}")
+        set_(self, "gn_tolerance", float(tol))
+        cap = self.gn_max_iterations
+        if isinstance(cap, bool) or int(cap) != cap or not 1 <= cap <= 1000:
+            raise ValueError(f"gn_max_iterations must be an integer in [1, 1000], got {cap!r}")
+        set_(self, "gn_max_iterations", int(cap))
+        set_(self, "dip_deg", check_dip_deg(self.dip_deg))
+
+    def axis_values(self, name: str) -> Array:
+        """A per-axis parameter as a (3,) array."""
+        return np.ascontiguousarray(
+            np.broadcast_to(np.asarray(getattr(self, name), dtype=np.float64), (3,))
+        )
+
+
+@dataclass
+class MarinsEkfState(State):
+    """Filter state per sensor: quaternion, rate, the 7x7 covariance and the reference dip.
+
+    quat : (S, 4) quaternion state (unit after every update; an initial state set by hand
+        may have any non-zero norm, which eqs. 12-15 account for).
+    gyr_est_rad_s : (S, 3) rate state ω, rad/s, body frame.
+    cov : (S, 7, 7) covariance of ``[ω (rad/s)², q (dimensionless)]``.
+    dip_rad : (S,) reference dip, rad, positive down; NaN until measured (``dip_deg`` None).
+    """
+
+    gyr_est_rad_s: Array = field(default_factory=lambda: np.zeros((0, 3)))
+    cov: Array = field(default_factory=lambda: np.zeros((0, 7, 7)))
+    dip_rad: Array = field(default_factory=lambda: np.zeros(0))
+
+
+def initial_covariance(n_sensors: int, rate_std_rad_s: float, quat_std: float) -> Array:
+    """Diagonal initial covariance (S, 7, 7): rate variance, then quaternion variance."""
+    cov = np.zeros((n_sensors, 7, 7))
+    idx = np.arange(7)
+    cov[:, idx[:3], idx[:3]] = rate_std_rad_s**2
+    cov[:, idx[3:], idx[3:]] = quat_std**2
+    return cov
+
+
+class MarinsEkf(Estimator[MarinsEkfParams, MarinsEkfState]):
+    """Marins' 7-state quaternion EKF (``--method ekf``), 001 sections 3-4.
+
+    Needs a magnetometer. Inputs per sample: gyroscope rad/s, accelerometer m/s²,
+    magnetometer (µT), body frame. Starts at the TRIAD orientation of the first sample
+    (or ``reset(q0)``) with zero rate.
+
+    Outputs besides ``quat`` (unit, sign continuous):
+
+    - ``gyr_est_rad_s`` (N, 3): the rate state ω after each update, rad/s;
+    - ``cov_diag`` (N, 7): the covariance diagonal, order ``[ω_x, ω_y, ω_z, q_w, q_x, q_y,
+      q_z]`` ((rad/s)², dimensionless); the full matrix after the last sample is
+      ``state.cov``;
+    - ``iterations`` (N,) int32: Gauss-Newton updates applied (0 for approach 1);
+    - ``degenerate`` (N,) int8: 0 ok, 1 zero accelerometer, 2 zero magnetometer,
+      3 accelerometer parallel to the field, 4 Gauss-Newton failed (these four are
+      corrected by the gyroscope alone), 5 innovation covariance not positive definite
+      (predicted only).
+    """
+
+    name = "ekf"
+    params_type = MarinsEkfParams
+    mag_optional = False
+
+    def _new_state(self, quat0: Array) -> MarinsEkfState:
+        p = self.params
+        q = np.array(quat0, dtype=np.float64)
+        return MarinsEkfState(
+            quat=q,
+            gyr_est_rad_s=np.zeros((q.shape[0], 3)),
+            cov=initial_covariance(q.shape[0], p.init_rate_std_rad_s, p.init_quat_std),
+            dip_rad=np.full(q.shape[0], np.nan),
+        )
+
+    def _process(
+        self,
+        state: MarinsEkfState,
+        gyr: Array | None,
+        acc: Array,
+        mag: Array | None,
+        dt: Array,
+    ) -> tuple[Array, dict[str, NDArray[Any]]]:
+        assert gyr is not None and mag is not None  # uses_gyr, mag_optional = False
+        p = self.params
+        n_sensors, n = acc.shape[0], acc.shape[1]
+        shapes = (state.gyr_est_rad_s.shape, state.cov.shape, state.dip_rad.shape)
+        if shapes != ((n_sensors, 3), (n_sensors, 7, 7), (n_sensors,)):
+            raise ValueError(
+                f"the state must hold gyr_est_rad_s ({n_sensors}, 3), cov ({n_sensors}, 7, 7) "
+                f"and dip_rad ({n_sensors},), got {shapes[0]}, {shapes[1]} and {shapes[2]}"
+            )
+        norms = np.linalg.norm(state.quat, axis=1)
+        if not np.all(np.isfinite(norms) & (norms > 0)):
+            raise ValueError("the state quaternion must be finite and non-zero")
+        # one kernel specialisation: numba types read-only arrays (a Recording's) apart
+        gyr, acc, mag = (x if x.flags.writeable else x.copy() for x in (gyr, acc, mag))
+        quat = np.empty((n_sensors, n, 4))
+        rate = np.empty((n_sensors, n, 3))
+        cov_diag = np.empty((n_sensors, n, 7))
+        iterations = np.empty((n_sensors, n), dtype=np.int32)
+        flags = np.empty((n_sensors, n), dtype=np.int8)
+        kernel.marins_ekf(
+            p.approach, state.quat, state.gyr_est_rad_s, state.cov, state.dip_rad,
+            gyr, acc, mag, dt, frames.up(p.frame), frames.mag_reference(p.frame, dip_deg=0.0),
+            dip_rad_or_nan(p.dip_deg), p.axis_values("tau_s"),
+            p.axis_values("rate_noise_rad_s_sqrt_hz") ** 2,
+            p.axis_values("gyr_noise_rad_s_sqrt_hz") ** 2,
+            p.quat_noise_per_sqrt_hz**2, p.acc_noise_m_s2_sqrt_hz**2,
+            p.mag_noise_ut_sqrt_hz**2, p.gravity_m_s2**2, p.mag_weight, p.gn_tolerance,
+            p.gn_max_iterations, quat, rate, cov_diag, iterations, flags,
+        )
+        outputs = {"gyr_est_rad_s": rate, "cov_diag": cov_diag, "iterations": iterations,
+                   "degenerate": flags}
+        return quat, outputs
