@@ -140,3 +140,22 @@ def test_guided_calibration_file_improves_margtrack_run(tmp_path):
     # MEMS gyro bias of ~0.4 deg/s integrates to degrees over the minute; calibrated, the
     # remaining error is noise and bias walk
     assert total(fixed) < 0.5 < total(raw)
+
+
+def test_info_and_run_report_a_saturated_magnetometer(tmp_path):
+    from margtrack import io as mio
+    from margtrack import sim
+
+    magnet = sim.magnet_pass(t_center_s=5.0, duration_s=2.0, peak_ut=400.0, direction=(0, 1, 0))
+    rec = sim.simulate(
+        sim.static(10.0, 100.0),
+        mag_disturbances=(magnet,),
+        mag_errors=sim.SensorErrors(noise_density=0.05, saturation=100.0),
+        seed=0,
+    )
+    path = tmp_path / "clipped.h5"
+    mio.write(rec, path)
+    first = int(np.flatnonzero(np.any(np.abs(rec.mag) >= 100.0, axis=1))[0])
+    assert f"mag at ±100 from sample {first}" in _ok(["info", path])
+    out = _ok(["run", path, "-o", tmp_path / "est.h5"])
+    assert f"mag sits at its range limit ±100 from sample {first}" in out

@@ -293,3 +293,36 @@ def test_resample_one_channel_and_errors() -> None:
         resample([0.0, 1.0, 2.0], np.zeros((2, 3)), [0.5])
     with pytest.raises(ValueError, match=r"values has a non-finite value .* at sample 1"):
         resample([0.0, 1.0], [[0.0], [np.nan]], [0.5])
+
+
+def test_saturated_magnetometer_is_found_with_its_first_sample() -> None:
+    from margtrack import sim
+    from margtrack.recording import find_saturation
+
+    # a magnet passing 1 cm away drives a ±100 µT magnetometer into its limit
+    magnet = sim.magnet_pass(t_center_s=5.0, duration_s=2.0, peak_ut=400.0, direction=(0, 1, 0))
+    rec = sim.simulate(
+        sim.static(10.0, 100.0),
+        mag_disturbances=(magnet,),
+        mag_errors=sim.SensorErrors(noise_density=0.05, saturation=100.0),
+        acc_errors=sim.SensorErrors(noise_density=0.002),
+        gyr_errors=sim.SensorErrors(noise_density=1e-4),
+        seed=0,
+    )
+    hits = rec.saturation()
+    assert set(hits) == {"mag"}
+    clipped = np.flatnonzero(np.any(np.abs(rec.mag) >= 100.0, axis=1))
+    assert hits["mag"].first_sample == clipped[0]
+    assert hits["mag"].level == 100.0
+    # a quiet quantised signal repeating its few levels is not clipping
+    quantised = np.round(np.random.default_rng(0).normal(scale=0.6, size=(500, 3)))
+    assert find_saturation(quantised) is None
+
+
+def test_no_saturation_reported_on_real_recordings_with_held_magnetometer(broad_folder) -> None:
+    from margtrack.io import read_broad
+
+    # BROAD's magnetometer is slower than the IMU and held for a few samples: the repeats
+    # at its maximum are ordinary holds, not clipping (these trials tripped a naive check)
+    for name in ("04_undisturbed_slow_rotation_with_breaks_A", "06_undisturbed_fast_rotation_A"):
+        assert read_broad(broad_folder / f"{name}.hdf5").saturation() == {}

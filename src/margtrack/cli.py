@@ -119,6 +119,15 @@ def info(path: Annotated[Path, typer.Argument(help="Recording file or folder.")]
         table.add_row(
             "gaps", f"{gaps.size}" + (f" (first at sample {gaps[0]})" if gaps.size else "")
         )
+        clipped = rec.saturation()
+        table.add_row(
+            "saturation",
+            "; ".join(
+                f"{k} at ±{v.level:.4g} from sample {v.first_sample} ({v.n_samples} samples)"
+                for k, v in clipped.items()
+            )
+            or "none",
+        )
         truth = "none"
         if rec.quat_true is not None:
             truth = f"quat_true in {rec.frame}"
@@ -181,6 +190,18 @@ def run(
     from margtrack.bench.metrics import error_series, summarize
 
     rec = io.read(path)
+    for name, hit in rec.saturation().items():
+        advice = (
+            "remove the magnet or metal near the sensor"
+            if name == "mag"
+            else "choose a wider sensor range"
+        )
+        err_console.print(
+            f"[yellow]warning:[/] {name} sits at its range limit ±{hit.level:.4g} from sample "
+            f"{hit.first_sample} ({hit.n_samples} samples); estimates there are unreliable: "
+            f"{advice}",
+            soft_wrap=True,
+        )
     if calibration is not None:
         from margtrack.calibration import load_calibration
 

@@ -27,7 +27,7 @@ _GYR_RAD_S_IMPLAUSIBLE = 40.0
 # A recording's median acceleration norm is about 9.8 in m/s²; between these bounds it is in g.
 _ACC_G_LIKELY = (0.5, 2.0)
 
-__all__ = ["Recording", "check_unit_magnitudes", "resample"]
+__all__ = ["Recording", "Saturation", "check_unit_magnitudes", "find_saturation", "resample"]
 
 
 def _array(
@@ -92,6 +92,55 @@ def check_unit_magnitudes(gyr_rad_s: Array, acc_m_s2: Array) -> None:
                 "the data is probably in g: pass acc_unit='g' to convert "
                 "(or check_units=False if it really is m/s²)"
             )
+
+
+@dataclass(frozen=True)
+class Saturation:
+    """Where a signal sits at its range limit: first sample, how many samples, the level."""
+
+    first_sample: int
+    n_samples: int
+    level: float
+
+
+def _runs(flags: NDArray[np.bool_]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Start indices and lengths of the runs of True in ``flags``."""
+    edges = np.diff(np.concatenate([[0], flags.astype(np.int8), [0]]))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return starts, stops - starts
+
+
+def find_saturation(
+    values: Array, hold_factor: float = 4.0, peak_ratio: float = 3.0
+) -> Saturation | None:
+    """Samples where an axis is pinned at the signal's extreme value (a clipped sensor).
+
+    ``values`` (N, 3). An axis counts as saturated where ``|x|`` equals its maximum over
+    the recording for a run of consecutive samples at least ``hold_factor`` times as long
+    as the axis' usual run of repeated values (a slower sensor resampled by holding
+    repeats each value for a few samples anyway) and at least 5, and that maximum is at
+    least ``peak_ratio`` times the axis' median ``|x|`` (so a quiet, quantised signal whose
+    few levels repeat is not taken for a clipped one). Returns None if no axis is.
+    """
+    first, count, level = None, 0, 0.0
+    for axis in np.asarray(values, dtype=np.float64).T:
+        mag = np.abs(axis)
+        peak = float(mag.max(initial=0.0))
+        if peak <= 0.0 or peak < peak_ratio * float(np.median(mag)):
+            continue
+        at_peak = mag >= peak
+        # the usual hold: median length of runs of identical values away from the peak
+        repeats = np.concatenate([np.diff(axis) == 0.0, [False]]) & ~at_peak
+        _, repeat_lengths = _runs(repeats)
+        usual = float(np.median(repeat_lengths + 1)) if repeat_lengths.size else 1.0
+        starts, lengths = _runs(at_peak)
+        long = lengths >= max(5.0, hold_factor * usual)
+        if long.any():
+            count += int(np.sum(lengths[long]))
+            start = int(starts[long][0])
+            if first is None or start < first:
+                first, level = start, peak
+    return None if first is None else Saturation(first, count, level)
 
 
 @dataclass(frozen=True, eq=False)
@@ -250,6 +299,17 @@ class Recording:
             quat_true=None if self.quat_true is None else self.quat_true[s],
             movement=None if self.movement is None else self.movement[s],
         )
+
+    def saturation(self) -> dict[str, Saturation]:
+        """Signals pinned at their range limit (see :func:`find_saturation`), by name."""
+        found = {}
+        for name in ("gyr", "acc", "mag"):
+            values = getattr(self, name)
+            if values is not None:
+                hit = find_saturation(values)
+                if hit is not None:
+                    found[name] = hit
+        return found
 
     def without_mag(self) -> Recording:
         """The same recording with the magnetometer removed (for 6-D estimation)."""
