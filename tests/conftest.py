@@ -8,6 +8,7 @@ import pytest
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 BROAD = DATA / "broad"
+XIO = DATA / "xio_lower_body"
 
 
 @pytest.fixture(scope="session")
@@ -16,3 +17,11 @@ def broad_folder() -> Path:
     if not (BROAD / "trials.json").is_file():
         pytest.skip(f"BROAD data not found at {BROAD} (it lives in ../shared beside the repo)")
     return BROAD
+
+
+@pytest.fixture(scope="session")
+def xio_folder() -> Path:
+    """../shared/data/xio_lower_body (7 x-IMU3 sensors), or skip: it lives outside the repo."""
+    if not all((XIO / "pelvis" / name).is_file() for name in ("Inertial.csv", "Quaternion.csv")):
+        pytest.skip(f"x-IMU3 lower-body data not found at {XIO} (it lives in ../shared)")
+    return XIO

@@ -103,14 +103,8 @@ def test_evaluate_broad_folder_prints_every_trial_and_the_mean(broad_folder, tmp
     assert all(1.0 < t < 90.0 for t in totals)
 
 
-def test_run_reads_an_xio_sensor_folder_in_deg_s_and_g(tmp_path):
-    from conftest import DATA
-
-    folder = DATA / "xio_lower_body" / "pelvis"
-    if not folder.is_dir():
-        import pytest
-
-        pytest.skip(f"x-IMU3 data not found at {folder}")
+def test_run_reads_an_xio_sensor_folder_in_deg_s_and_g(tmp_path, xio_folder):
+    folder = xio_folder / "pelvis"
     out = tmp_path / "pelvis.csv"
     _ok(["run", folder, "--method", "gyro", "-o", out])
     data = np.loadtxt(out, delimiter=",", skiprows=1)

@@ -11,15 +11,12 @@ from margtrack import quaternion as quat
 from margtrack.body import Skeleton, body_axes, calibrate, joint_angles, still_window, track
 from margtrack.body.xio import from_device_frame, read_xio_orientations
 
-XIO = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "xio_lower_body"
 RATE_HZ = 50.0
 
 
 @pytest.fixture(scope="module")
-def xio() -> Path:
-    if not (XIO / "pelvis" / "Quaternion.csv").is_file():
-        pytest.skip(f"x-IMU3 lower-body data not found at {XIO} (it lives in ../shared)")
-    return XIO
+def xio(xio_folder: Path) -> Path:
+    return xio_folder
 
 
 def test_device_frame_is_nwu(xio: Path) -> None:

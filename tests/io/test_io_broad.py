@@ -12,15 +12,12 @@ import pytest
 from margtrack import quaternion as quat
 from margtrack.io import BroadTrial, broad_trials, read_broad
 
-BROAD = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "broad"
 TRIAL_01 = "01_undisturbed_slow_rotation_A"
 
 
 @pytest.fixture(scope="module")
-def broad_dir() -> Path:
-    if not (BROAD / "trials.json").is_file():
-        pytest.skip(f"BROAD data not found at {BROAD} (it lives in ../shared/data beside the repo)")
-    return BROAD
+def broad_dir(broad_folder: Path) -> Path:
+    return broad_folder
 
 
 @pytest.fixture(scope="module")

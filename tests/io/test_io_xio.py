@@ -10,7 +10,6 @@ import pytest
 
 from margtrack.io import read_xio_body, read_xio_quaternion, read_xio_sensor
 
-XIO = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "xio_lower_body"
 SENSORS = {
     "left_foot": "Left Foot", "left_lower_leg": "Left Lower Leg",
     "left_upper_leg": "Left Upper Leg", "pelvis": "Pelvis", "right_foot": "Right Foot",
@@ -19,10 +18,8 @@ SENSORS = {
 
 
 @pytest.fixture(scope="module")
-def xio_dir() -> Path:
-    if not (XIO / "pelvis" / "Inertial.csv").is_file():
-        pytest.skip(f"x-IMU3 data not found at {XIO} (it lives in ../shared/data beside the repo)")
-    return XIO
+def xio_dir(xio_folder: Path) -> Path:
+    return xio_folder
 
 
 @pytest.fixture(scope="module")

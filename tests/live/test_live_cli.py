@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 import threading
-from pathlib import Path
 
 import pytest
 import typer
 from typer.testing import CliRunner
 
 from margtrack.live.cli import live_command
-
-XIO = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "xio_lower_body"
 
 app = typer.Typer()
 app.command(name="live")(live_command)
@@ -25,11 +22,9 @@ def _other() -> None:  # a second command, so that "live" is a subcommand as in 
 runner = CliRunner()
 
 
-def test_headless_replay_of_the_xio_body_tracks_and_calibrates():
-    if not (XIO / "pelvis" / "Inertial.csv").is_file():
-        pytest.skip(f"x-IMU3 lower-body data not found at {XIO} (it lives in ../shared)")
-    result = runner.invoke(app, ["live", "--replay", str(XIO), "--speed", "inf", "--headless",
-                                 "--method", "bachmann", "-p", "gain=0.5"])
+def test_headless_replay_of_the_xio_body_tracks_and_calibrates(xio_folder):
+    args = ["live", "--replay", str(xio_folder), "--speed", "inf", "--headless"]
+    result = runner.invoke(app, [*args, "--method", "bachmann", "-p", "gain=0.5"])
     assert result.exit_code == 0, result.output
     assert "7 sensors, method bachmann" in result.output
     assert "928 frames" in result.output  # the sensors' common span at 50 Hz

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,18 +18,14 @@ from margtrack.live.replay import ReplaySource, replay_path
 from margtrack.live.simulator import PeopleSimulation, SimulatorSource
 from margtrack.live.udp import UdpSource, send_lines
 
-XIO = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "xio_lower_body"
-
 
 def _live_threads():
     return [t for t in threading.enumerate() if t.name.startswith("margtrack-live")]
 
 
 @pytest.fixture(scope="module")
-def xio_replay():
-    if not (XIO / "pelvis" / "Inertial.csv").is_file():
-        pytest.skip(f"x-IMU3 lower-body data not found at {XIO} (it lives in ../shared)")
-    full = replay_path(XIO, speed=math.inf)
+def xio_replay(xio_folder):
+    full = replay_path(xio_folder, speed=math.inf)
     n = 400  # 8 s at 50 Hz: still reference pose, then walking
     return ReplaySource(full.t_s[:n], full.gyr[:, :n], full.acc[:, :n], full.mag[:, :n],
                         full.info.sensor_names, speed=math.inf, chunk_frames=13)

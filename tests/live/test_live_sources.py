@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,8 +12,6 @@ from margtrack import io, sim
 from margtrack.live.protocol import Pacer, iter_chunks
 from margtrack.live.replay import ReplaySource, replay_path, replay_recordings
 from margtrack.recording import resample
-
-XIO = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "xio_lower_body"
 
 
 def _arrays(n: int = 101, s: int = 2, seed: int = 0):
@@ -94,14 +91,12 @@ def test_bad_replay_arrays_are_refused():
 
 
 @pytest.fixture(scope="module")
-def xio_body():
-    if not (XIO / "pelvis" / "Inertial.csv").is_file():
-        pytest.skip(f"x-IMU3 lower-body data not found at {XIO} (it lives in ../shared)")
-    return io.read_xio_body(XIO)
+def xio_body(xio_folder):
+    return io.read_xio_body(xio_folder)
 
 
-def test_xio_body_folder_replays_its_seven_sensors_on_one_time_base(xio_body):
-    source = replay_path(XIO, speed=math.inf)
+def test_xio_body_folder_replays_its_seven_sensors_on_one_time_base(xio_body, xio_folder):
+    source = replay_path(xio_folder, speed=math.inf)
     info = source.info
     assert info.sensor_names == (
         "left_foot", "left_lower_leg", "left_upper_leg", "pelvis",
