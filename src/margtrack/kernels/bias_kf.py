@@ -30,8 +30,16 @@ import math
 import numpy as np
 from numba import njit
 
-from margtrack.kernels._quat import cross, from_matrix, normalized
-from margtrack.kernels.triad import OK, PARALLEL, PARALLEL_SINE, ZERO_ACC, ZERO_MAG
+from margtrack.kernels._quat import cross, normalized
+from margtrack.kernels.triad import (
+    OK,
+    PARALLEL,
+    ZERO_ACC,
+    ZERO_MAG,
+    reference_triad,
+    triad_unit,
+    unit_pair,
+)
 
 #: flag: the innovation covariance was not positive definite, the update was skipped
 #: (5, not 4: kernels.triad uses 4 for a failed Gauss-Newton solve)
@@ -139,36 +147,13 @@ def _triad(ax, ay, az, mx, my, mz, up, north):
     by the largest of four branches, so every orientation works (eq. 38 is only the
     ``q0 > 0`` branch and divides by zero at half turns).
     """
-    na = math.sqrt(ax * ax + ay * ay + az * az)
-    nm = math.sqrt(mx * mx + my * my + mz * mz)
-    if not na > 0.0:
-        return ZERO_ACC, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0
-    if not nm > 0.0:
-        return ZERO_MAG, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0
-    ax, ay, az = ax / na, ay / na, az / na
-    mx, my, mz = mx / nm, my / nm, mz / nm
-    r2x, r2y, r2z = cross(ax, ay, az, mx, my, mz)  # eq. 11
-    n2 = math.sqrt(r2x * r2x + r2y * r2y + r2z * r2z)
-    if n2 < PARALLEL_SINE:
-        return PARALLEL, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0
-    r2x, r2y, r2z = r2x / n2, r2y / n2, r2z / n2
-    r3x, r3y, r3z = cross(ax, ay, az, r2x, r2y, r2z)
-    s1x, s1y, s1z = up[0], up[1], up[2]
-    s2x, s2y, s2z = cross(s1x, s1y, s1z, north[0], north[1], north[2])
-    ns = math.sqrt(s2x * s2x + s2y * s2y + s2z * s2z)
-    s2x, s2y, s2z = s2x / ns, s2y / ns, s2z / ns
-    s3x, s3y, s3z = cross(s1x, s1y, s1z, s2x, s2y, s2z)
-    w, x, y, z = from_matrix(
-        s1x * ax + s2x * r2x + s3x * r3x,
-        s1x * ay + s2x * r2y + s3x * r3y,
-        s1x * az + s2x * r2z + s3x * r3z,
-        s1y * ax + s2y * r2x + s3y * r3x,
-        s1y * ay + s2y * r2y + s3y * r3y,
-        s1y * az + s2y * r2z + s3y * r3z,
-        s1z * ax + s2z * r2x + s3z * r3x,
-        s1z * ay + s2z * r2y + s3z * r3y,
-        s1z * az + s2z * r2z + s3z * r3z,
+    flag, ax, ay, az, mx, my, mz = unit_pair(ax, ay, az, mx, my, mz)  # eqs. 10-11
+    if flag != OK:
+        return flag, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0
+    s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z = reference_triad(
+        up[0], up[1], up[2], north[0], north[1], north[2]
     )
+    w, x, y, z = triad_unit(ax, ay, az, mx, my, mz, s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z)
     return OK, w, x, y, z, ax, ay, az, mx, my, mz
 
 
