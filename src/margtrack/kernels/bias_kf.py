@@ -30,6 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
+from margtrack.kernels._linalg import add_kalman_gain, cholesky
 from margtrack.kernels._quat import cross, normalized
 from margtrack.kernels.triad import (
     OK,
@@ -193,34 +194,15 @@ def _kalman_update(p, v, innov, chol, y, gain, zmat, kv, dx):
     exactly symmetric. Returns False (nothing changed) if ``S`` is not positive definite.
     """
     m, n = v.shape[0], p.shape[0]
+    # S = P_mm + V, formed in zmat, which is free until Z is computed below
     for r in range(m):
         for c in range(r + 1):
-            acc = p[r, c] + v[r, c]
-            for k in range(c):
-                acc -= chol[r, k] * chol[c, k]
-            if r == c:
-                if not acc > 0.0:
-                    return False
-                chol[r, r] = math.sqrt(acc)
-            else:
-                chol[r, c] = acc / chol[c, c]
-    for c in range(n):  # Y = S⁻¹ H P, K = Yᵀ (eq. 49)
-        for r in range(m):
-            acc = p[r, c]
-            for k in range(r):
-                acc -= chol[r, k] * y[k, c]
-            y[r, c] = acc / chol[r, r]
-        for r in range(m - 1, -1, -1):
-            acc = y[r, c]
-            for k in range(r + 1, m):
-                acc -= chol[k, r] * y[k, c]
-            y[r, c] = acc / chol[r, r]
+            zmat[r, c] = p[r, c] + v[r, c]
+    if not cholesky(zmat, m, chol):
+        return False
     for r in range(n):
-        acc = 0.0
-        for c in range(m):
-            gain[r, c] = y[c, r]
-            acc += y[c, r] * innov[c]
-        dx[r] = acc  # eq. 50
+        dx[r] = 0.0
+    add_kalman_gain(chol, m, p, innov, dx, y, gain)  # K = P Hᵀ S⁻¹ (eq. 49), dx = K ν (eq. 50)
     for r in range(n):  # Z = (I - KH) P, KV
         for c in range(n):
             acc = p[r, c]

@@ -53,6 +53,7 @@ import math
 import numpy as np
 from numba import njit
 
+from margtrack.kernels._linalg import add_kalman_gain, cholesky
 from margtrack.kernels._quat import mul
 from margtrack.kernels.davenport import reference_field
 from margtrack.kernels.gauss_newton import gauss_newton_solve
@@ -210,46 +211,6 @@ def vector_measurement(w, x, y, z, vx, vy, vz, jac):
 
 
 @njit(cache=True)
-def _cholesky(s, m, chol):
-    """Lower Cholesky factor of s[:m, :m] into chol; False if not positive definite."""
-    for r in range(m):
-        for c in range(r + 1):
-            acc = s[r, c]
-            for k in range(c):
-                acc -= chol[r, k] * chol[c, k]
-            if r == c:
-                if not acc > 0.0:
-                    return False
-                chol[r, r] = math.sqrt(acc)
-            else:
-                chol[r, c] = acc / chol[c, c]
-    return True
-
-
-@njit(cache=True)
-def _gain(chol, m, rhs, innov, x, y, gain):
-    """K = rhsᵀ S⁻¹ for S = chol cholᵀ (rhs (m, n) = H P), into gain (n, m); x += K ν."""
-    n = x.shape[0]
-    for c in range(n):  # Y = S⁻¹ rhs by two triangular solves per column
-        for r in range(m):
-            acc = rhs[r, c]
-            for k in range(r):
-                acc -= chol[r, k] * y[k, c]
-            y[r, c] = acc / chol[r, r]
-        for r in range(m - 1, -1, -1):
-            acc = y[r, c]
-            for k in range(r + 1, m):
-                acc -= chol[k, r] * y[k, c]
-            y[r, c] = acc / chol[r, r]
-    for i in range(n):
-        acc = 0.0
-        for k in range(m):
-            gain[i, k] = y[k, i]
-            acc += y[k, i] * innov[k]
-        x[i] += acc
-
-
-@njit(cache=True)
 def _joseph(p, a, gain, r, m, zmat):
     """P ← A P Aᵀ + K diag(r) Kᵀ (A = I - KH given), upper triangle mirrored."""
     n = p.shape[0]
@@ -304,9 +265,9 @@ def _update(p, hm, r, innov, m, dense, x, buf):
                 s[i, j] = p[i, j]
     for i in range(m):
         s[i, i] += r[i]
-    if not _cholesky(s, m, chol):
+    if not cholesky(s, m, chol):
         return False
-    _gain(chol, m, a, innov, x, y, gain)
+    add_kalman_gain(chol, m, a, innov, x, y, gain)
     for i in range(n):  # A = I - K H
         for j in range(n):
             acc = 1.0 if i == j else 0.0

@@ -1,0 +1,55 @@
+"""Small dense linear algebra for the Kalman kernels: Cholesky factor and Kalman gain.
+
+Explicit loops over fixed-size buffers: for the 3-9 dimensional systems of the filters
+they are several times faster in numba than ``np.linalg`` calls, which allocate.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+
+@njit(cache=True)
+def cholesky(s, m, chol):
+    """Lower Cholesky factor of ``s[:m, :m]`` into ``chol``; False if not positive definite."""
+    for r in range(m):
+        for c in range(r + 1):
+            acc = s[r, c]
+            for k in range(c):
+                acc -= chol[r, k] * chol[c, k]
+            if r == c:
+                if not acc > 0.0:
+                    return False
+                chol[r, r] = math.sqrt(acc)
+            else:
+                chol[r, c] = acc / chol[c, c]
+    return True
+
+
+@njit(cache=True)
+def add_kalman_gain(chol, m, rhs, innov, x, y, gain):
+    """Kalman gain ``K = rhsᵀ S⁻¹`` with ``S = chol cholᵀ`` into ``gain`` (n, m); ``x += K ν``.
+
+    ``rhs`` (m, n) is ``H P``; ``y`` (m, n) a buffer. Two triangular solves per column of
+    ``rhs`` replace the inverse of ``S``.
+    """
+    n = x.shape[0]
+    for c in range(n):  # Y = S⁻¹ rhs
+        for r in range(m):
+            acc = rhs[r, c]
+            for k in range(r):
+                acc -= chol[r, k] * y[k, c]
+            y[r, c] = acc / chol[r, r]
+        for r in range(m - 1, -1, -1):
+            acc = y[r, c]
+            for k in range(r + 1, m):
+                acc -= chol[k, r] * y[k, c]
+            y[r, c] = acc / chol[r, r]
+    for i in range(n):
+        acc = 0.0
+        for k in range(m):
+            gain[i, k] = y[k, i]
+            acc += y[k, i] * innov[k]
+        x[i] += acc
