@@ -21,13 +21,12 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 from numba import njit
 
 from margtrack import frames
-from margtrack.bench.speed import Throughput, measure
+from margtrack.bench.speed import measure, print_table, speed_input
 from margtrack.filters.bias_kf import BiasKalman, initial_covariance, track_all_accelerometer
 from margtrack.kernels.bias_kf import (
     _triad,
@@ -37,28 +36,10 @@ from margtrack.kernels.bias_kf import (
     fill_triad_cov,
 )
 
-BROAD = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "broad"
 RATE_HZ = 285.714
 N_SENSORS = 8
 
 
-def load_input(n: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
-    """gyr rad/s, acc m/s², mag µT, each (n, 3) C-contiguous, and where they come from."""
-    if (BROAD / "trials.json").is_file():
-        from margtrack.io import broad_trials, read_broad
-
-        recs = [read_broad(t.path) for t in broad_trials(BROAD)]
-        parts = [np.concatenate([getattr(r, k) for r in recs]) for k in ("gyr", "acc", "mag")]
-        source = f"{len(recs)} BROAD trials ({parts[0].shape[0]} samples)"
-    else:
-        from margtrack import sim
-
-        rec = sim.simulate_motion("random", duration_s=3000.0, rate_hz=RATE_HZ, seed=0)
-        parts = [rec.gyr, rec.acc, rec.mag]
-        source = "a simulated random motion"
-    n = parts[0].shape[0] if n is None else min(n, parts[0].shape[0])
-    gyr, acc, mag = (np.ascontiguousarray(p[:n]) for p in parts)
-    return gyr, acc, mag, source
 
 
 @njit(cache=False)
@@ -113,12 +94,6 @@ def bias_kf_linalg(q0, cov0, gyr, acc, mag, dt, up, north, gyr_var, bias_var, ac
         quat_out[i] = q
 
 
-def _table(rows: list[tuple[Throughput, str]], ref: Throughput, ref_name: str) -> None:
-    width = max(len(r.label) for r, _ in rows)
-    print(f"{'':{width}}  {'samples/s':>12}  {'us/sample':>10}  {'vs ' + ref_name:>14}  note")
-    for r, note in rows:
-        print(f"{r.label:{width}}  {r.samples_per_s:12.4g}  {r.us_per_sample:10.4g}  "
-              f"{r.ratio_to(ref):14.3g}  {note}")
 
 
 def main() -> None:
@@ -127,7 +102,8 @@ def main() -> None:
     parser.add_argument("--ahrs-samples", type=int, default=20_000)
     parser.add_argument("--calls", type=int, default=2_000, help="live update() calls timed")
     args = parser.parse_args()
-    gyr, acc, mag, source = load_input(args.samples)
+    data = speed_input(args.samples, rate_hz=RATE_HZ)
+    gyr, acc, mag, source = data.gyr, data.acc, data.mag, data.source
     n = gyr.shape[0]
     t = np.arange(n) / RATE_HZ
     print(f"input: {source}, {n} samples used")
@@ -202,7 +178,7 @@ def main() -> None:
 
     print("\nbatch (compilation excluded; linalg variant compiled in "
           f"{compile_s:.1f} s; its quaternions differ from the kernel's by {agree:.1e})")
-    _table([
+    print_table([
         (mine, ""),
         (multi, f"{N_SENSORS} x {m} samples"),
         (linalg, "7x7 products + inv"),
@@ -211,7 +187,7 @@ def main() -> None:
         (pipeline, f"{na} samples at 500 Hz"),
     ], mine, "run (1 sensor)")
     print("\nlive, one sample per call")
-    _table([(update, "validation, state copy, kernel"), (ahrs_update, "")], update, "update")
+    print_table([(update, "validation, state copy, kernel"), (ahrs_update, "")], update, "update")
 
 
 if __name__ == "__main__":

@@ -21,34 +21,15 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 
-from margtrack.bench.speed import Throughput, measure
+from margtrack.bench.speed import Throughput, measure, speed_input
 from margtrack.filters.complementary import Bachmann
 
-BROAD = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "broad"
 RATE_HZ = 286.0
 
 
-def load_input(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
-    """gyr rad/s, acc m/s², mag µT, each (n, 3), and a description of the source."""
-    if (BROAD / "trials.json").is_file():
-        from margtrack.io import broad_trials, read_broad
-
-        recs = [read_broad(t.path) for t in broad_trials(BROAD)]
-        parts = [np.concatenate([getattr(r, k) for r in recs]) for k in ("gyr", "acc", "mag")]
-        source = f"{len(recs)} BROAD trials ({parts[0].shape[0]} samples) repeated"
-    else:
-        from margtrack import sim
-
-        rec = sim.simulate_motion("random", duration_s=600.0, rate_hz=RATE_HZ, seed=0)
-        parts = [rec.gyr, rec.acc, rec.mag]
-        source = "a simulated random motion repeated"
-    reps = -(-n // parts[0].shape[0])
-    gyr, acc, mag = (np.ascontiguousarray(np.tile(p, (reps, 1))[:n]) for p in parts)
-    return gyr, acc, mag, source
 
 
 def main() -> None:
@@ -58,7 +39,8 @@ def main() -> None:
     parser.add_argument("--update-calls", type=int, default=20_000)
     args = parser.parse_args()
     n = args.samples
-    gyr, acc, mag, source = load_input(n)
+    data = speed_input(n, rate_hz=RATE_HZ)
+    gyr, acc, mag, source = data.gyr, data.acc, data.mag, data.source
     print(f"input: {n} samples from {source}, {RATE_HZ} Hz\n")
     results: list[tuple[Throughput, str]] = []
 

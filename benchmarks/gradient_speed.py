@@ -20,44 +20,18 @@ with ratios to margtrack's one-sensor ``run`` and to its ``update``.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 
-from margtrack.bench.speed import Throughput, measure
+from margtrack.bench.speed import Throughput, measure, print_table, speed_input
 from margtrack.filters.gradient import Gradient
 
-BROAD = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "broad"
 RATE_HZ = 285.714  # BROAD's sampling rate
 N_SENSORS = 15
 
 
-def load_input(n: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
-    """gyr rad/s, acc m/s², mag µT, each (n, 3) C-contiguous, and where they come from."""
-    if (BROAD / "trials.json").is_file():
-        from margtrack.io import broad_trials, read_broad
-
-        recs = [read_broad(t.path) for t in broad_trials(BROAD)]
-        parts = [np.concatenate([getattr(r, k) for r in recs]) for k in ("gyr", "acc", "mag")]
-        source = f"{len(recs)} BROAD trials ({parts[0].shape[0]} samples)"
-    else:
-        from margtrack import sim
-
-        rec = sim.simulate_motion("random", duration_s=3000.0, rate_hz=RATE_HZ, seed=0)
-        parts = [rec.gyr, rec.acc, rec.mag]
-        source = "a simulated random motion"
-    n = parts[0].shape[0] if n is None else n
-    reps = -(-n // parts[0].shape[0])
-    gyr, acc, mag = (np.ascontiguousarray(np.tile(p, (reps, 1))[:n]) for p in parts)
-    return gyr, acc, mag, source
 
 
-def _table(rows: list[tuple[Throughput, str]], ref: Throughput, ref_name: str) -> None:
-    width = max(len(r.label) for r, _ in rows)
-    print(f"{'':{width}}  {'samples/s':>12}  {'us/sample':>10}  {'vs ' + ref_name:>14}  note")
-    for r, note in rows:
-        print(f"{r.label:{width}}  {r.samples_per_s:12.4g}  {r.us_per_sample:10.4g}  "
-              f"{r.ratio_to(ref):14.3g}  {note}")
 
 
 def main() -> None:
@@ -66,7 +40,8 @@ def main() -> None:
     parser.add_argument("--ahrs-samples", type=int, default=50_000)
     parser.add_argument("--calls", type=int, default=20_000, help="per-call measurements")
     args = parser.parse_args()
-    gyr, acc, mag, source = load_input(args.samples)
+    data = speed_input(args.samples, rate_hz=RATE_HZ)
+    gyr, acc, mag, source = data.gyr, data.acc, data.mag, data.source
     n = gyr.shape[0]
     print(f"input: {n} samples from {source}, {RATE_HZ} Hz, MARG\n")
 
@@ -97,7 +72,7 @@ def main() -> None:
                                            frequency=RATE_HZ, gain=0.08), m, repeats=1),
                    f"pure Python, first {m} samples"))
     print("batch")
-    _table(batch, base, "run 1 sensor")
+    print_table(batch, base, "run 1 sensor")
 
     # -- per call ------------------------------------------------------------------------
     calls = min(args.calls, n)
@@ -146,7 +121,7 @@ def main() -> None:
 
     per_call.append((measure("imufusion Ahrs.update", fusion_calls, calls), "C, Python call"))
     print("\nper call (one sample)")
-    _table(per_call, upd, "update")
+    print_table(per_call, upd, "update")
     vqf = batch[2][0]
     print(f"\nGradient.run is {base.ratio_to(vqf):.2f}x vqf updateBatch per sample "
           f"({many.ratio_to(vqf):.2f}x with {N_SENSORS} sensors per call); "

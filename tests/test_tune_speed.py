@@ -53,3 +53,15 @@ def test_unknown_experiment_names_the_available_ones(tmp_path):
     with pytest.raises(ValueError, match="unknown experiment 'nope'; available:"):
         experiments.run("nope", tmp_path)
     assert np.all([isinstance(n, str) for n in experiments.available()])
+
+
+def test_speed_input_truncates_and_repeats(tmp_path):
+    from margtrack.bench.speed import speed_input
+
+    # no BROAD folder here: the simulated fallback, 10 s at 100 Hz = 1001 samples
+    short = speed_input(500, folder=tmp_path, rate_hz=100.0, fallback_duration_s=10.0)
+    assert short.gyr.shape == (500, 3) and short.source == "a simulated random motion"
+    long = speed_input(2500, folder=tmp_path, rate_hz=100.0, fallback_duration_s=10.0)
+    assert long.source.endswith("repeated")
+    np.testing.assert_array_equal(long.acc[1001:1501], short.acc)  # the data again, end to end
+    assert long.mag.flags.c_contiguous
