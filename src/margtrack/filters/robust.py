@@ -109,7 +109,6 @@ class RobustParams(Params):
         rad = np.radians
         c[kernel.C_TAU_ACC] = self.tau_acc_s
         c[kernel.C_TAU_MAG] = self.tau_mag_s
-        c[kernel.C_BIAS_SIGMA_INIT] = rad(self.bias_sigma_init_deg_s)
         c[kernel.C_BIAS_WALK] = rad(self.bias_walk_deg_s_sqrt_s)
         c[kernel.C_BIAS_REST_NOISE] = rad(self.bias_rest_noise_deg_s)
         c[kernel.C_BIAS_MOTION_NOISE] = rad(self.bias_motion_noise_deg_s)

@@ -39,30 +39,28 @@ I_MAG_DIP_REF = 26  # reference dip, rad
 I_MAG_CAND_NORM = 27  # candidate norm while disturbed
 I_MAG_CAND_DIP = 28  # candidate dip while disturbed
 I_MAG_CAND_T = 29  # time the candidate has been consistent, s
-I_MAG_UNDIST_T = 30  # time since the last disturbance, s
-I_BW = 31  # 6: Butterworth states (s1, s2) of the three accelerometer channels
-I_BW_DT = 37  # sample interval the coefficients below were computed for, s
-I_BW_COEF = 38  # 3: b0, a1, a2 of the second-order Butterworth low-pass
-N_STATE = 41
+I_BW = 30  # 6: Butterworth states (s1, s2) of the three accelerometer channels
+I_BW_DT = 36  # sample interval the coefficients below were computed for, s
+I_BW_COEF = 37  # 3: b0, a1, a2 of the second-order Butterworth low-pass
+N_STATE = 40
 
 # -- parameter layout (``coef`` (N_COEF,)) ------------------------------------------------
 C_TAU_ACC = 0
 C_TAU_MAG = 1
-C_BIAS_SIGMA_INIT = 2
-C_BIAS_WALK = 3
-C_BIAS_REST_NOISE = 4
-C_BIAS_MOTION_NOISE = 5
-C_BIAS_MAX = 6
-C_REST_GYR = 7
-C_REST_ACC = 8
-C_REST_MIN_T = 9
-C_REST_TAU = 10
-C_MAG_NORM_TOL = 11
-C_MAG_DIP_TOL = 12
-C_MAG_NEW_REF_T = 13
-C_MAG_REF_TAU = 14
-C_NED = 15
-N_COEF = 16
+C_BIAS_WALK = 2
+C_BIAS_REST_NOISE = 3
+C_BIAS_MOTION_NOISE = 4
+C_BIAS_MAX = 5
+C_REST_GYR = 6
+C_REST_ACC = 7
+C_REST_MIN_T = 8
+C_REST_TAU = 9
+C_MAG_NORM_TOL = 10
+C_MAG_DIP_TOL = 11
+C_MAG_NEW_REF_T = 12
+C_MAG_REF_TAU = 13
+C_NED = 14
+N_COEF = 15
 
 
 @njit(cache=True, inline="always")
@@ -149,7 +147,6 @@ def _init(st, acc, q0):
     st[I_REST_T] = 0.0
     st[I_MAG_NORM_REF] = 0.0
     st[I_MAG_CAND_T] = 0.0
-    st[I_MAG_UNDIST_T] = 0.0
 
 
 @njit(cache=True)
@@ -322,7 +319,6 @@ def robust_filter(
                     )
                     if step > 0.0:
                         if not disturbed:
-                            st[I_MAG_UNDIST_T] += step
                             st[I_MAG_NORM_REF] += k_ref * (m_norm - ref_n)
                             st[I_MAG_DIP_REF] += k_ref * (dip - st[I_MAG_DIP_REF])
                             st[I_MAG_CAND_NORM] = m_norm
@@ -334,7 +330,6 @@ def robust_filter(
                             error = _wrap(field_heading - st[I_HEAD])
                             st[I_HEAD] = _wrap(st[I_HEAD] + k_mag * error)
                         else:
-                            st[I_MAG_UNDIST_T] = 0.0
                             # a new, steady field: track a candidate and adopt it once it
                             # has stayed consistent for long enough (a new environment)
                             cand_n = st[I_MAG_CAND_NORM]
