@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from margtrack.filters.complementary import BachmannParams
 from margtrack.live.simulator import PeopleSimulation, SimulatorSource
 
 pytestmark = pytest.mark.browser
@@ -84,7 +85,7 @@ def test_live_view_connects_renders_the_avatar_and_retunes_the_filter(tmp_path):
             assert blue > 200 and red > 200, f"avatar not drawn: {blue} blue, {red} red pixels"
 
             gain = page.get_by_label("gain", exact=True)
-            assert float(gain.input_value()) == pytest.approx(0.11)
+            assert float(gain.input_value()) == pytest.approx(BachmannParams().gain)
             gain.fill("0.5")
             gain.press("Enter")
             _wait(lambda: session.engine.active_params.gain == 0.5, 5.0,

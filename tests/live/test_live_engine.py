@@ -11,6 +11,7 @@ import pytest
 
 from margtrack import body, methods
 from margtrack import quaternion as quat
+from margtrack.filters.complementary import BachmannParams
 from margtrack.live.engine import Engine
 from margtrack.live.lines import format_line
 from margtrack.live.protocol import iter_chunks
@@ -93,9 +94,10 @@ def test_a_parameter_change_takes_effect_at_the_next_sample():
         engine.push([chunk])
     with pytest.raises(ValueError, match="gain"):
         engine.set_params(gain=-1.0)
-    assert engine.params.gain == 0.11
+    default_gain = BachmannParams().gain
+    assert engine.params.gain == default_gain
     engine.set_params(gain=2.0, mag_weight=0.3)
-    assert engine.params.gain == 2.0 and engine.active_params.gain == 0.11
+    assert engine.params.gain == 2.0 and engine.active_params.gain == default_gain
     engine.start_recording()
     for chunk in chunks[k:]:
         engine.push([chunk])

@@ -76,14 +76,15 @@ class State:
     def copy(self) -> State:
         """An independent copy (the kernels update state arrays in place).
 
-        Arrays are copied, containers deep-copied, scalars shared; cheaper than a generic
+        Arrays and nested state dataclasses are copied (the latter by their own
+        ``copy()``), containers deep-copied, scalars shared; cheaper than a generic
         deep copy, which ``update`` would otherwise pay on every sample.
         """
         values = {}
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            if isinstance(value, np.ndarray):
-                value = value.copy()
+            if isinstance(value, np.ndarray) or dataclasses.is_dataclass(value):
+                value = value.copy()  # a nested state dataclass provides its own copy()
             elif isinstance(value, (list, dict, set)):
                 value = copy.deepcopy(value)
             values[f.name] = value

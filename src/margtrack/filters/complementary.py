@@ -41,6 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 from margtrack import frames
 from margtrack import quaternion as quat
 from margtrack.estimators.base import Estimator, Params, State
+from margtrack.filters._rest_null import RestNullState, subtract_rest_null
 from margtrack.kernels import complementary as kernel
 
 Array = NDArray[np.float64]
@@ -85,12 +86,12 @@ def _number(value: Any, name: str, allowed: str, ok) -> float:
 class BachmannParams(Params):
     """Parameters of the Bachmann filter (000, Appendix A). Bad values raise ``ValueError``.
 
-    gain : ``k`` (eq. 25), 1/s, >= 0; default 0.11. Tilt errors decay like ``exp(-k t)``
+    gain : ``k`` (eq. 25), 1/s, >= 0; default 0.06. Tilt errors decay like ``exp(-k t)``
         (squared error to 37 % at ``1/(2k)``, eq. 12). Raising it follows the
         accelerometer and magnetometer faster: less gyro drift (a gyro bias b leaves an
         error b/k), more noise and more error from linear acceleration and magnetic
         disturbances. 0 is pure gyro integration. Keep ``k·dt`` well below 1 (eq. 27).
-    mag_weight : ``ρ`` (eq. 17), >= 0; default 0.8. Scales the magnetic residual:
+    mag_weight : ``ρ`` (eq. 17), >= 0; default 0.7. Scales the magnetic residual:
         heading errors decay at rate ``ρ k``. Lowering it resists magnetic disturbances
         but lets heading drift (0: no magnetic residual at all).
     correction_interval : a new drift correction every n-th sample (>= 1, default 1);
@@ -100,6 +101,11 @@ class BachmannParams(Params):
         ``(c - s) % correction_interval == 0``, so with ``correction_interval`` equal to
         the number of sensors exactly one filter corrects per cycle (000, "Reduce Rate
         Drift Correction": one correction per 100 Hz cycle shared by 16 filters).
+    gyr_null_rest_s : the gyro null point (000 Appendix B step 1) is the mean rate over the
+        still period that starts the recording, if it lasts at least this long, s, >= 0;
+        default 1; 0: no null (the raw gyro, as in 000's static-stability test). See
+        :mod:`margtrack.filters._rest_null` for what counts as still. 000 stresses that a
+        rate bias b leaves a steady error of about b/k ("Rate Sensor Bias Compensation").
     dip_deg : magnetic inclination for the field reference ``n``, deg, positive down, in
         [-85, 85]; None (default) measures it for each sensor from its first sample
         after a reset (angle between accelerometer and magnetometer), 000's "determined
@@ -111,14 +117,18 @@ class BachmannParams(Params):
     frame : earth frame of the output, "ENU" (default) or "NED".
 
     The defaults of ``gain`` and ``mag_weight`` are the best single pair for all 16 BROAD
-    trials of ../shared/data/broad (``margtrack.bench.tune``, grid k in 0.05-4 /s, ρ in
-    0.1-1.25, dip measured at the start): mean total RMSE 5.15 deg.
+    trials of ../shared/data/broad (``margtrack tune``, k in 0.03-0.15 /s, ρ in 0.5-1, dip
+    measured at the start, the gyro null from each trial's still start): mean total RMSE
+    4.22 deg (heading 3.22, inclination 2.50). Without the null (``gyr_null_rest_s=0``)
+    the best pair is k = 0.11, ρ = 0.8 at 5.15 deg: the larger k needed against BROAD's
+    0.1-0.5 deg/s gyro biases lets in more linear acceleration.
     """
 
-    gain: float = 0.11
-    mag_weight: float = 0.8
+    gain: float = 0.06
+    mag_weight: float = 0.7
     correction_interval: int = 1
     round_robin: bool = False
+    gyr_null_rest_s: float = 1.0
     dip_deg: float | None = None
     gravity_reference: tuple[float, float, float] | None = None
     mag_reference: tuple[float, float, float] | None = None
@@ -135,6 +145,9 @@ class BachmannParams(Params):
         if not isinstance(self.round_robin, (bool, np.bool_)):
             raise ValueError(f"round_robin must be True or False, got {self.round_robin!r}")
         set_(self, "round_robin", bool(self.round_robin))
+        set_(self, "gyr_null_rest_s", _number(
+            self.gyr_null_rest_s, "gyr_null_rest_s", ">= 0 (s)", lambda x: x >= 0
+        ))
         if self.dip_deg is not None:
             dip = _number(self.dip_deg, "dip_deg", "in [-85, 85] deg", lambda x: abs(x) <= 85)
             set_(self, "dip_deg", dip)
@@ -193,12 +206,14 @@ class BachmannState(State):
     phi : (S,) criterion of the held correction (eq. 19); nan before the first.
     dip_rad : (S,) field inclination measured at the start, rad (nan: not measured).
     cycle : samples processed since the reset (drives the correction schedule).
+    rest_null : progress of the gyro null taken from the still start.
     """
 
     correction_step: Array = field(default_factory=lambda: np.zeros((0, 3)))
     phi: Array = field(default_factory=lambda: np.zeros(0))
     dip_rad: Array = field(default_factory=lambda: np.zeros(0))
     cycle: int = 0
+    rest_null: RestNullState = field(default_factory=lambda: RestNullState.new(0))
 
 
 class Bachmann(Estimator[BachmannParams, BachmannState]):
@@ -213,7 +228,8 @@ class Bachmann(Estimator[BachmannParams, BachmannState]):
     ``ω_ε`` with ``q̇_ε = ½ (0, ω_ε) ⊗ q̂`` (``= 2 k Δv_full`` rotated to the earth);
     ``new_correction`` (N,) bool, True where a new correction was computed;
     ``degenerate`` (N,) int8: 1 zero accelerometer (no correction), 2 zero magnetometer
-    (gravity-only correction), 0 otherwise.
+    (gravity-only correction), 0 otherwise;
+    ``gyr_null_rad_s`` (N, 3) the gyro null subtracted (``gyr_null_rest_s``), rad/s.
     """
 
     name = "bachmann"
@@ -229,6 +245,7 @@ class Bachmann(Estimator[BachmannParams, BachmannState]):
             correction_step=np.zeros((n, 3)),
             phi=np.full(n, np.nan),
             dip_rad=np.full(n, np.nan),
+            rest_null=RestNullState.new(n),
         )
 
     def _initial_quat(self, acc0: Array, mag0: Array | None) -> Array:
@@ -298,6 +315,11 @@ class Bachmann(Estimator[BachmannParams, BachmannState]):
         p = self.params
         n_sensors, n = acc.shape[0], acc.shape[1]
         grav, refs = self._coefficients(state, acc, mag)
+        outputs: dict[str, NDArray[Any]] = {}
+        if gyr is not None:
+            gyr, outputs["gyr_null_rad_s"] = subtract_rest_null(
+                state.rest_null, gyr, acc, mag, dt, p.gyr_null_rest_s
+            )
         interval = p.correction_interval
         phase = np.zeros(n_sensors, dtype=np.int64)
         if p.round_robin:
@@ -315,7 +337,7 @@ class Bachmann(Estimator[BachmannParams, BachmannState]):
             q, phi, corr, new, flags,
         )  # fmt: skip
         state.cycle += n
-        outputs = {"phi": phi, "correction_rad_s": corr, "new_correction": new, "degenerate": flags}
+        outputs.update(phi=phi, correction_rad_s=corr, new_correction=new, degenerate=flags)
         return q, outputs
 
 

@@ -47,6 +47,7 @@ from numpy.typing import NDArray
 from margtrack import frames
 from margtrack.estimators.base import Estimator, Params, State
 from margtrack.estimators.prefilter import check_dip_deg, dip_rad_or_nan
+from margtrack.filters._rest_null import RestNullState, subtract_rest_null
 from margtrack.frames import STANDARD_GRAVITY_M_S2
 from margtrack.kernels import ekf as kernel
 
@@ -89,14 +90,16 @@ class MarinsEkfParams(Params):
     :func:`margtrack.bench.tune.tune` found best. τ and the driving noise follow 001's rule
     (match the spectrum of the rates of normal motion): BROAD's gyroscope signals have a
     correlation time of about 0.3 s (lag 0.1 s) and an rms of 1.85 rad/s, so
-    ``τ = 0.3`` s and ``σ = 1.85 √(2τ) ≈ 1.4`` rad/s/√Hz. Tuned on that (approach 2):
-    ``quat_noise_per_sqrt_hz`` in {0.018, ..., 0.03}, ``gyr_noise_rad_s_sqrt_hz`` in
-    {3e-4, 1e-3, 3e-3}, ``mag_weight`` in {0.8, 1, 1.25}, ``gn_max_iterations`` in {1, 2, 3}:
-    mean total RMSE 5.70 deg (heading 3.72, inclination 4.14); ahrs's Madgwick with one
-    tuned β: 4.88 deg. The optimum is flat in that grid (5.70-5.75 deg for its 12 best
-    points). Approach 1's ``acc_noise_m_s2_sqrt_hz`` and ``mag_noise_ut_sqrt_hz`` were
-    tuned with the same process parameters (grids {0.1, ..., 0.2} and {0.55, ..., 0.8}):
-    5.59 deg.
+    ``τ = 0.3`` s and ``σ = 1.85 √(2τ) ≈ 1.4`` rad/s/√Hz (τ in {0.15, 0.3, 0.6} s with σ
+    in {0.7, 1.4, 2.8} confirmed it). Tuned on that (approach 2, gyro null from each
+    trial's still start): ``quat_noise_per_sqrt_hz`` in {0.022, ..., 0.22},
+    ``gyr_noise_rad_s_sqrt_hz`` in {3e-4, 1e-3}, ``mag_weight`` in {0.8, 1}: mean total
+    RMSE 4.65 deg (heading 2.63, inclination 3.53); ahrs's Madgwick with one tuned β:
+    4.88 deg. Without the null (``gyr_null_rest_s=0``) the best was 5.70 deg at
+    ``quat_noise_per_sqrt_hz = 0.022``: a gyro bias is signal to this model, so it needs a
+    stronger pull to the measured quaternion. Approach 1's ``acc_noise_m_s2_sqrt_hz`` and
+    ``mag_noise_ut_sqrt_hz`` were tuned with the same process parameters (grids
+    {0.14, 0.3, 0.5} and {0.66, 1.5, 3}): 5.18 deg.
 
     approach : 2 (default, 001's choice: gyro + Gauss-Newton quaternion, ``H = I``) or 1
         (the nine nonlinear outputs).
@@ -129,15 +132,20 @@ class MarinsEkfParams(Params):
     gravity_m_s2 : gravity magnitude for approach 1's accelerometer noise, m/s², > 0.
     init_rate_std_rad_s : initial rate uncertainty per axis, rad/s, > 0.
     init_quat_std : initial uncertainty of each quaternion component, in (0, 2].
+    gyr_null_rest_s : the gyro null point is the mean rate over the still period that
+        starts the recording, if it lasts at least this long, s, >= 0; default 1; 0: raw
+        gyro. 001's rate model has no bias state: a bias enters the measured rate as
+        signal (see :mod:`margtrack.filters._rest_null`; 000 Appendix B step 1 calibrates
+        the null the same way).
     """
 
     approach: int = 2
     tau_s: PerAxis = 0.3
     rate_noise_rad_s_sqrt_hz: PerAxis = 1.4
     gyr_noise_rad_s_sqrt_hz: PerAxis = 3e-4
-    quat_noise_per_sqrt_hz: float = 0.022
-    acc_noise_m_s2_sqrt_hz: float = 0.14
-    mag_noise_ut_sqrt_hz: float = 0.66
+    quat_noise_per_sqrt_hz: float = 0.075
+    acc_noise_m_s2_sqrt_hz: float = 0.3
+    mag_noise_ut_sqrt_hz: float = 1.5
     mag_weight: float = 1.0
     gn_tolerance: float = 1e-14
     gn_max_iterations: int = 2
@@ -145,6 +153,7 @@ class MarinsEkfParams(Params):
     gravity_m_s2: float = STANDARD_GRAVITY_M_S2
     init_rate_std_rad_s: float = 1.0
     init_quat_std: float = 0.5
+    gyr_null_rest_s: float = 1.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -168,6 +177,10 @@ class MarinsEkfParams(Params):
             raise ValueError(f"gn_max_iterations must be an integer in [1, 1000], got {cap!r}")
         set_(self, "gn_max_iterations", int(cap))
         set_(self, "dip_deg", check_dip_deg(self.dip_deg))
+        rest = self.gyr_null_rest_s
+        if isinstance(rest, (str, bool)) or not (math.isfinite(rest) and rest >= 0.0):
+            raise ValueError(f"gyr_null_rest_s must be a finite number >= 0 (s), got {rest!r}")
+        set_(self, "gyr_null_rest_s", float(rest))
 
     def axis_values(self, name: str) -> Array:
         """A per-axis parameter as a (3,) array."""
@@ -185,11 +198,13 @@ class MarinsEkfState(State):
     gyr_est_rad_s : (S, 3) rate state ω, rad/s, body frame.
     cov : (S, 7, 7) covariance of ``[ω (rad/s)², q (dimensionless)]``.
     dip_rad : (S,) reference dip, rad, positive down; NaN until measured (``dip_deg`` None).
+    rest_null : progress of the gyro null taken from the still start.
     """
 
     gyr_est_rad_s: Array = field(default_factory=lambda: np.zeros((0, 3)))
     cov: Array = field(default_factory=lambda: np.zeros((0, 7, 7)))
     dip_rad: Array = field(default_factory=lambda: np.zeros(0))
+    rest_null: RestNullState = field(default_factory=lambda: RestNullState.new(0))
 
 
 def initial_covariance(n_sensors: int, rate_std_rad_s: float, quat_std: float) -> Array:
@@ -215,6 +230,7 @@ class MarinsEkf(Estimator[MarinsEkfParams, MarinsEkfState]):
       q_z]`` ((rad/s)², dimensionless); the full matrix after the last sample is
       ``state.cov``;
     - ``iterations`` (N,) int32: Gauss-Newton updates applied (0 for approach 1);
+    - ``gyr_null_rad_s`` (N, 3): the gyro null subtracted (``gyr_null_rest_s``), rad/s;
     - ``degenerate`` (N,) int8: 0 ok, 1 zero accelerometer, 2 zero magnetometer,
       3 accelerometer parallel to the field, 4 Gauss-Newton failed (these four are
       corrected by the gyroscope alone), 5 innovation covariance not positive definite
@@ -233,6 +249,7 @@ class MarinsEkf(Estimator[MarinsEkfParams, MarinsEkfState]):
             gyr_est_rad_s=np.zeros((q.shape[0], 3)),
             cov=initial_covariance(q.shape[0], p.init_rate_std_rad_s, p.init_quat_std),
             dip_rad=np.full(q.shape[0], np.nan),
+            rest_null=RestNullState.new(q.shape[0]),
         )
 
     def _process(
@@ -257,6 +274,7 @@ class MarinsEkf(Estimator[MarinsEkfParams, MarinsEkfState]):
             raise ValueError("the state quaternion must be finite and non-zero")
         # one kernel specialisation: numba types read-only arrays (a Recording's) apart
         gyr, acc, mag = (x if x.flags.writeable else x.copy() for x in (gyr, acc, mag))
+        gyr, null = subtract_rest_null(state.rest_null, gyr, acc, mag, dt, p.gyr_null_rest_s)
         quat = np.empty((n_sensors, n, 4))
         rate = np.empty((n_sensors, n, 3))
         cov_diag = np.empty((n_sensors, n, 7))
@@ -273,5 +291,5 @@ class MarinsEkf(Estimator[MarinsEkfParams, MarinsEkfState]):
             p.gn_max_iterations, quat, rate, cov_diag, iterations, flags,
         )
         outputs = {"gyr_est_rad_s": rate, "cov_diag": cov_diag, "iterations": iterations,
-                   "degenerate": flags}
+                   "degenerate": flags, "gyr_null_rad_s": null}
         return quat, outputs

@@ -1,0 +1,118 @@
+"""The gyroscope null point taken from the still start of a recording (000, Appendix B step 1).
+
+000 calibrates each rate sensor's null point by averaging its output while the sensor is
+stationary ("Sensor Calibration"; Appendix B, step 1) and notes that an uncompensated
+bias "will cause a steady state error in a complementary filter" ("Rate Sensor Bias
+Compensation"): a bias b leaves an error of about b/k. Filters without a bias state
+(Bachmann's, Marins' EKF) therefore take the null from the still period that starts a
+recording, online and causally:
+
+- from the first sample after a reset the sensor counts as still while each gyro sample is
+  within :data:`GYR_TOLERANCE_DEG_S` of the mean so far and the accelerometer (and
+  magnetometer) direction stays within :data:`ACC_TOLERANCE_DEG` (:data:`MAG_TOLERANCE_DEG`)
+  of its mean so far;
+- while still, the running mean is subtracted (the sensor is at rest, so the output holds);
+- at the first moving sample the mean is frozen and used from then on, unless the still
+  start lasted less than ``min_rest_s``, in which case no null is used.
+
+Give a calibrated gyroscope instead (``margtrack run --calibration``) and switch this off
+with ``min_rest_s = 0``. Limitation: a rotation that is already under way at the first
+sample at a constant rate (no gyro change) is only told from a bias by the turning
+accelerometer and field, after 2 deg of tilt or 10 deg of field direction away from their
+means: below about 4 deg/s about a horizontal axis (20 deg/s about the field without
+gravity change) it would be taken for a null. Start recordings still, as 000 does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from margtrack.kernels import rest_null as kernel
+
+Array = NDArray[np.float64]
+
+#: Largest deviation of a still gyro sample from the mean so far, deg/s: above MEMS noise
+#: (~0.1-0.5 deg/s per sample), below deliberate motion.
+GYR_TOLERANCE_DEG_S = 3.0
+#: Largest change of the accelerometer direction while still, deg.
+ACC_TOLERANCE_DEG = 2.0
+#: Largest change of the magnetometer direction while still, deg: BROAD's magnetometers
+#: scatter by 3-5 deg from sample to sample at rest.
+MAG_TOLERANCE_DEG = 10.0
+
+
+@dataclass
+class RestNullState:
+    """Progress of the initial-rest null for S sensors (arrays updated by the kernel).
+
+    total_rad_s : (S, 3) sum of the still gyro samples, rad/s. count : (S,) their number.
+    duration_s : (S,) their time span, s. acc_sum, mag_sum : (S, 3) the sums of their
+    accelerometer and magnetometer vectors. still : (S,) True while the start is
+    still (the null is being measured).
+    """
+
+    total_rad_s: Array
+    count: NDArray[np.int64]
+    duration_s: Array
+    acc_sum: Array
+    mag_sum: Array
+    still: NDArray[np.bool_]
+
+    @classmethod
+    def new(cls, n_sensors: int) -> RestNullState:
+        """Nothing measured yet, every sensor still."""
+        return cls(
+            total_rad_s=np.zeros((n_sensors, 3)),
+            count=np.zeros(n_sensors, dtype=np.int64),
+            duration_s=np.zeros(n_sensors),
+            acc_sum=np.zeros((n_sensors, 3)),
+            mag_sum=np.zeros((n_sensors, 3)),
+            still=np.ones(n_sensors, dtype=np.bool_),
+        )
+
+    def copy(self) -> RestNullState:
+        """An independent copy."""
+        return RestNullState(
+            self.total_rad_s.copy(), self.count.copy(), self.duration_s.copy(),
+            self.acc_sum.copy(), self.mag_sum.copy(), self.still.copy(),
+        )  # fmt: skip
+
+
+def subtract_rest_null(
+    state: RestNullState,
+    gyr: Array,
+    acc: Array,
+    mag: Array | None,
+    dt: Array,
+    min_rest_s: float,
+) -> tuple[Array, Array]:
+    """Gyro minus its initial-rest null, and the null used, both (S, N, 3) rad/s.
+
+    gyr, acc, mag (S, N, 3) body frame (mag None without a magnetometer), dt (N,) s; the
+    state advances (an empty state, e.g. of a state set by hand, starts from scratch).
+    ``min_rest_s <= 0`` returns the gyro unchanged and a zero null.
+    """
+    if state.count.size == 0:  # a state built without this part starts measuring now
+        fresh = RestNullState.new(gyr.shape[0])
+        for name in ("total_rad_s", "count", "duration_s", "acc_sum", "mag_sum", "still"):
+            setattr(state, name, getattr(fresh, name))
+    if state.count.shape != (gyr.shape[0],):
+        raise ValueError(
+            f"the rest-null state holds {state.count.shape[0]} sensor(s), the data "
+            f"{gyr.shape[0]}; reset() first"
+        )
+    if min_rest_s <= 0.0:
+        return gyr, np.zeros_like(gyr)
+    out = np.empty_like(gyr)
+    null = np.empty_like(gyr)
+    kernel.subtract_rest_null(
+        gyr, acc, np.empty((gyr.shape[0], 0, 3)) if mag is None else mag, dt,
+        state.total_rad_s, state.count, state.duration_s, state.acc_sum, state.mag_sum,
+        state.still, float(min_rest_s), np.radians(GYR_TOLERANCE_DEG_S),
+        np.cos(np.radians(ACC_TOLERANCE_DEG)), np.cos(np.radians(MAG_TOLERANCE_DEG)),
+        out, null,
+    )  # fmt: skip
+    return out, null
