@@ -206,7 +206,8 @@ def test_kernel_equals_a_plain_numpy_implementation_of_eqs_25_to_51():
                        gyr_errors=sim.SensorErrors.mems_gyr(),
                        acc_errors=sim.SensorErrors.mems_acc(),
                        mag_errors=sim.SensorErrors.mems_mag(), seed=5)
-    p = BiasKalmanParams(gyr_noise_rad_s_sqrt_hz=(1e-3, 2e-3, 1.5e-3), acc_motion_fraction=0.05)
+    p = BiasKalmanParams.as_printed(gyr_noise_rad_s_sqrt_hz=(1e-3, 2e-3, 1.5e-3),
+                                    acc_motion_fraction=0.05)
     est = BiasKalman(p).run(rec)
     t = 0.01
     up, north = frames.up("ENU"), frames.mag_reference("ENU", 0.0)

@@ -21,6 +21,12 @@ Convention notes (derived, the extracted text of 003 differs):
   eq. 14 puts ``q0`` first; here the scalar row comes first, so ``Q̃ b = q ⊗ (0, b)``.
 - eq. 28 prints ``Φ_B = -½ Φ_Q Q̃``; integrating eq. 22 over one period gives
   ``Φ_B = -½ T Φ_Q Q̃`` (the ``T`` makes ``Φ_B b`` dimensionless).
+
+:func:`bias_kf` is the filter as printed; :func:`bias_kf_extended` adds margtrack's
+extensions (each off at its neutral value, where it is the same filter to the last bit):
+the decoupled tilt/heading measurement, rate-proportional gyro noise, measurement noise
+adapted to the accelerometer norm and the field norm and dip, and a robust tilt gate.
+Their model and motivation are in :class:`margtrack.filters.bias_kf.BiasKalmanParams`.
 """
 
 from __future__ import annotations
@@ -31,10 +37,11 @@ import numpy as np
 from numba import njit
 
 from margtrack.kernels._linalg import add_kalman_gain, cholesky
-from margtrack.kernels._quat import cross, normalized
+from margtrack.kernels._quat import cross, mul, normalized
 from margtrack.kernels.triad import (
     OK,
     PARALLEL,
+    PARALLEL_SINE,
     ZERO_ACC,
     ZERO_MAG,
     reference_triad,
@@ -53,6 +60,7 @@ __all__ = [
     "ZERO_ACC",
     "ZERO_MAG",
     "bias_kf",
+    "bias_kf_extended",
     "fill_phi_q",
     "fill_qtilde",
     "fill_quat_noise",
@@ -159,6 +167,99 @@ def _triad(ax, ay, az, mx, my, mz, up, north):
 
 
 @njit(cache=True)
+def _up_in_body(w, x, y, z, ux, uy, uz):
+    """``R(q)ᵀ u``: the earth vector ``u`` in body coordinates (``q`` body to earth)."""
+    return (
+        (1.0 - 2.0 * (y * y + z * z)) * ux + 2.0 * (x * y + w * z) * uy
+        + 2.0 * (x * z - w * y) * uz,
+        2.0 * (x * y - w * z) * ux + (1.0 - 2.0 * (x * x + z * z)) * uy
+        + 2.0 * (y * z + w * x) * uz,
+        2.0 * (x * z + w * y) * ux + 2.0 * (y * z - w * x) * uy
+        + (1.0 - 2.0 * (x * x + y * y)) * uz,
+    )
+
+
+@njit(cache=True)
+def _decoupled(ax, ay, az, nx, ny, nz, zx, zy, zz, up, north):
+    """Tilt from the accelerometer, heading from the field levelled by the predicted tilt.
+
+    ``â``, ``n̂`` unit body accelerometer and field, ``ẑ`` the predicted body up. Returns
+    (flag, w, x, y, z, |ẑ × n̂|²): ``q_A = TRIAD(ẑ, n̂)`` has the predicted tilt and the
+    heading of the field projected on the plane normal to ``ẑ``; ``q = q_A ⊗ r`` with ``r``
+    the shortest rotation taking ``â`` to ``ẑ``, so ``q`` maps ``â`` to up. ``r``'s axis
+    ``â × ẑ`` is normal to ``ẑ``, i.e. horizontal in the earth frame: the tilt correction
+    leaves the heading alone. PARALLEL if ``ẑ`` and ``n̂`` are (nearly) parallel.
+    """
+    cx, cy, cz = cross(zx, zy, zz, nx, ny, nz)
+    c2 = cx * cx + cy * cy + cz * cz
+    if c2 < PARALLEL_SINE * PARALLEL_SINE:
+        return PARALLEL, 1.0, 0.0, 0.0, 0.0, c2
+    s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z = reference_triad(
+        up[0], up[1], up[2], north[0], north[1], north[2]
+    )
+    hw, hx, hy, hz = triad_unit(zx, zy, zz, nx, ny, nz,
+                                s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z)
+    d = ax * zx + ay * zy + az * zz
+    if 1.0 + d > 1e-12:
+        rx, ry, rz = cross(ax, ay, az, zx, zy, zz)
+        rw, rx, ry, rz = normalized(1.0 + d, rx, ry, rz)
+    else:  # â = -ẑ: any axis normal to ẑ turns it by π; take the horizontal ẑ × n̂
+        inv = 1.0 / math.sqrt(c2)
+        rw, rx, ry, rz = 0.0, cx * inv, cy * inv, cz * inv
+    w, x, y, z = mul(hw, hx, hy, hz, rw, rx, ry, rz)
+    return OK, w, x, y, z, c2
+
+
+@njit(cache=True)
+def fill_decoupled_cov(zx, zy, zz, var_g, var_h, out):
+    """Error-angle covariance (3, 3) of the decoupled measurement, body frame, rad².
+
+    ``σ_G² (I - ẑẑᵀ) + σ_H² ẑẑᵀ``: the tilt (normal to the up ``ẑ``) from the
+    accelerometer, variance ``var_g`` per axis; the heading (about ``ẑ``) from the field
+    only, ``var_h = σ_N² / |ẑ × n̂|²`` (eq. 45 without the ``σ_G²`` terms that carry the
+    accelerometer's tilt error into TRIAD's heading).
+    """
+    z = (zx, zy, zz)
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = (var_h - var_g) * z[i] * z[j] + (var_g if i == j else 0.0)
+
+
+@njit(cache=True)
+def _tilt_innovation_d2(p, qw, qx, qy, qz, mw, mx, my, mz, zx, zy, zz, var_g, qt, tmp, pth):
+    """Squared normalised tilt innovation (2 dof) of measurement ``m`` against ``q⁻``.
+
+    Innovation angle ``θ = 2 vec(q⁻* ⊗ m)`` (body frame), its part normal to the
+    predicted up ``ẑ`` against the tilt variance ``½ tr(P_θ⊥) + σ_G²`` per axis, with
+    ``P_θ = 4 Q̃ᵀ P_qq Q̃`` the state's angle covariance. ``qt`` (4, 3), ``tmp`` (4, 3),
+    ``pth`` (3, 3) are buffers.
+    """
+    _, ex, ey, ez = mul(qw, -qx, -qy, -qz, mw, mx, my, mz)
+    tx, ty, tz = 2.0 * ex, 2.0 * ey, 2.0 * ez
+    fill_qtilde(qw, qx, qy, qz, qt)
+    for r in range(4):
+        for c in range(3):
+            acc = 0.0
+            for k in range(4):
+                acc += p[r, k] * qt[k, c]
+            tmp[r, c] = acc
+    for r in range(3):
+        for c in range(3):
+            acc = 0.0
+            for k in range(4):
+                acc += qt[k, r] * tmp[k, c]
+            pth[r, c] = 4.0 * acc
+    z = (zx, zy, zz)
+    pzz = 0.0
+    for r in range(3):
+        for c in range(3):
+            pzz += z[r] * pth[r, c] * z[c]
+    along = tx * zx + ty * zy + tz * zz
+    normal2 = tx * tx + ty * ty + tz * tz - along * along
+    return normal2 / (0.5 * (pth[0, 0] + pth[1, 1] + pth[2, 2] - pzz) + var_g)
+
+
+@njit(cache=True)
 def _predict_covariance(p, g, gp):
     """``P ← Φ P Φᵀ`` in place for ``Φ = [[G], [0, I]]``, ``G = [Φ_Q, Φ_B]`` (m, n) (eq. 48).
 
@@ -232,7 +333,7 @@ def bias_kf(
     gyr_var, bias_var, acc_var, acc_motion_var_m2_s4, gravity2_m2_s4, mag_var,
     quat_out, bias_out, cov_diag_out, flags,
 ):  # fmt: skip
-    """Run the filter for S sensors over N samples, updating the state arrays in place.
+    """Run the filter as printed (no extension) for S sensors over N samples, in place.
 
     quat_state (S, 4), bias_state (S, 3) rad/s, cov_state (S, 7, 7): state before sample 0,
     replaced by the state after the last sample. gyr (S, N, 3) rad/s, acc (S, N, 3) m/s²,
@@ -243,6 +344,38 @@ def bias_kf(
     gravity2_m2_s4: g², the squared magnitude of the expected gravity vector (eq. 41).
     Outputs (S, N, 4), (S, N, 3), (S, N, 7) diagonal of P, flags (S, N) int8 (TRIAD flags,
     or NOT_PD); a flagged sample is predicted but not corrected.
+    :func:`bias_kf_extended` with every extension at its neutral value.
+    """
+    field_ref = np.full((acc.shape[0], 2), np.nan)
+    bias_kf_extended(
+        quat_state, bias_state, cov_state, field_ref, gyr, acc, mag, dt, up, north,
+        gyr_var, bias_var, acc_var, acc_motion_var_m2_s4, gravity2_m2_s4, mag_var,
+        False, 0.0, 0.0, 0.0, 0.0, math.inf, 1.0,
+        quat_out, bias_out, cov_diag_out, flags,
+    )
+
+
+@njit(cache=True)
+def bias_kf_extended(
+    quat_state, bias_state, cov_state, field_ref, gyr, acc, mag, dt, up, north,
+    gyr_var, bias_var, acc_var, acc_motion_var_m2_s4, gravity2_m2_s4, mag_var,
+    decoupled, gyr_scale_var_s, acc_norm_corr_s, mag_norm_corr_s, mag_dip_corr_s,
+    tilt_gate, tilt_gate_exponent,
+    quat_out, bias_out, cov_diag_out, flags,
+):  # fmt: skip
+    """:func:`bias_kf` with margtrack's extensions (arguments as there, plus these).
+
+    field_ref (S, 2): the field's reference norm (mag unit) and ``sin`` of its dip (the
+    field's component along predicted down over its norm), state; NaN until the first
+    sample with a non-zero field sets them from that sample and the orientation then.
+    decoupled: the tilt/heading measurement (:func:`_decoupled`, :func:`fill_decoupled_cov`)
+    instead of TRIAD's. gyr_scale_var_s κ², s: rate noise density per axis
+    ``n_k² + κ² ω_k²`` (eq. 31). acc_norm_corr_s, mag_norm_corr_s, mag_dip_corr_s τ, s:
+    ``σ_G² += (|a|/g - 1)² 2τ/T`` (eqs. 41-43), ``σ_N² += ((|m|/|m₀| - 1)² 2τ_m +
+    (sin δ - sin δ₀)² 2τ_δ)/T`` (eq. 44). tilt_gate γ (inf: off), tilt_gate_exponent p:
+    with ``d²`` the normalised tilt innovation (:func:`_tilt_innovation_d2`), ``σ_G²`` is
+    multiplied by ``(d²/γ)^p`` where ``d² > γ``. All neutral (False, 0, 0, 0, 0, inf):
+    :func:`bias_kf` exactly.
     """
     n_sensors, n = acc.shape[0], acc.shape[1]
     phi = np.empty((4, 4))
@@ -258,6 +391,11 @@ def bias_kf(
     kv = np.empty((7, 4))
     dx = np.empty(7)
     innov = np.empty(4)
+    tmp43 = np.empty((4, 3))
+    pth = np.empty((3, 3))
+    g_abs = math.sqrt(gravity2_m2_s4)
+    use_field_ref = mag_norm_corr_s > 0.0 or mag_dip_corr_s > 0.0
+    use_up = decoupled or mag_dip_corr_s > 0.0 or tilt_gate < math.inf
     for s in range(n_sensors):
         qw, qx, qy, qz = quat_state[s, 0], quat_state[s, 1], quat_state[s, 2], quat_state[s, 3]
         bx, by, bz = bias_state[s, 0], bias_state[s, 1], bias_state[s, 2]
@@ -265,6 +403,13 @@ def bias_kf(
         for i in range(n):
             h = dt[i]
             flag = OK
+            mgx, mgy, mgz = mag[s, i, 0], mag[s, i, 1], mag[s, i, 2]
+            nm2 = mgx * mgx + mgy * mgy + mgz * mgz
+            if use_field_ref and math.isnan(field_ref[s, 0]) and nm2 > 0.0:
+                nm = math.sqrt(nm2)
+                ux, uy, uz = _up_in_body(qw, qx, qy, qz, up[0], up[1], up[2])
+                field_ref[s, 0] = nm
+                field_ref[s, 1] = -(ux * mgx + uy * mgy + uz * mgz) / nm
             if h > 0.0:
                 # -- prediction (eqs. 25-31, 47-48) --------------------------------------
                 wx, wy, wz = gyr[s, i, 0] - bx, gyr[s, i, 1] - by, gyr[s, i, 2] - bz  # eq. 17
@@ -288,6 +433,10 @@ def bias_kf(
                 # W (eq. 31): rate noise as an angle over the period, Ξ_Ω = n² T per axis
                 for k in range(3):
                     xi[k, k] = gyr_var[k] * h
+                if gyr_scale_var_s > 0.0:  # rate-proportional part: (κ ω)² T
+                    xi[0, 0] += gyr_scale_var_s * wx * wx * h
+                    xi[1, 1] += gyr_scale_var_s * wy * wy * h
+                    xi[2, 2] += gyr_scale_var_s * wz * wz * h
                 fill_quat_noise(qw, qx, qy, qz, xi, qt, noise)
                 for r in range(4):
                     for c in range(4):
@@ -295,20 +444,45 @@ def bias_kf(
                 for k in range(3):
                     p[4 + k, 4 + k] += bias_var[k] * h  # Ξ_B: bias random walk
                 # -- measurement: TRIAD quaternion (eqs. 10-13, 38) ----------------------
-                res = _triad(acc[s, i, 0], acc[s, i, 1], acc[s, i, 2],
-                             mag[s, i, 0], mag[s, i, 1], mag[s, i, 2], up, north)
+                res = _triad(acc[s, i, 0], acc[s, i, 1], acc[s, i, 2], mgx, mgy, mgz, up, north)
                 flag = res[0]
+                mw, mx, my, mz = res[1], res[2], res[3], res[4]
+                ux, uy, uz = 0.0, 0.0, 1.0
+                if flag == OK and use_up:  # predicted up, body frame
+                    ux, uy, uz = _up_in_body(qw, qx, qy, qz, up[0], up[1], up[2])
+                c2 = 1.0
+                if flag == OK and decoupled:
+                    dec = _decoupled(res[5], res[6], res[7], res[8], res[9], res[10],
+                                     ux, uy, uz, up, north)
+                    flag = dec[0]
+                    mw, mx, my, mz, c2 = dec[1], dec[2], dec[3], dec[4], dec[5]
                 if flag == OK:
-                    mw, mx, my, mz = res[1], res[2], res[3], res[4]
                     if mw * qw + mx * qx + my * qy + mz * qz < 0.0:  # sign nearest q⁻
                         mw, mx, my, mz = -mw, -mx, -my, -mz
                     # unit-vector noise = normal noise / |E v| (eqs. 41-44): |E ᴮG| is g,
                     # known; |E ᴮM| is unknown and the field's own noise is small, so |m|
-                    nm2 = mag[s, i, 0] ** 2 + mag[s, i, 1] ** 2 + mag[s, i, 2] ** 2
                     var_g = (acc_var / h + acc_motion_var_m2_s4) / gravity2_m2_s4  # eqs. 41-43
                     var_n = (mag_var / h) / nm2  # eq. 44
-                    fill_triad_cov(res[5], res[6], res[7], res[8], res[9], res[10],
-                                   var_g, var_n, xi)  # eq. 45
+                    if acc_norm_corr_s > 0.0:  # time-correlated body acceleration
+                        na = math.sqrt(acc[s, i, 0] ** 2 + acc[s, i, 1] ** 2 + acc[s, i, 2] ** 2)
+                        var_g += (na / g_abs - 1.0) ** 2 * (2.0 * acc_norm_corr_s / h)
+                    if use_field_ref:  # magnetic disturbance: field norm and dip
+                        nm = math.sqrt(nm2)
+                        sin_dip = -(ux * mgx + uy * mgy + uz * mgz) / nm
+                        var_n += (
+                            (nm / field_ref[s, 0] - 1.0) ** 2 * (2.0 * mag_norm_corr_s)
+                            + (sin_dip - field_ref[s, 1]) ** 2 * (2.0 * mag_dip_corr_s)
+                        ) / h
+                    if tilt_gate < math.inf:  # robust tilt gate
+                        d2 = _tilt_innovation_d2(p, qw, qx, qy, qz, mw, mx, my, mz,
+                                                 ux, uy, uz, var_g, qt, tmp43, pth)
+                        if d2 > tilt_gate:
+                            var_g *= (d2 / tilt_gate) ** tilt_gate_exponent
+                    if decoupled:
+                        fill_decoupled_cov(ux, uy, uz, var_g, var_n / c2, xi)
+                    else:
+                        fill_triad_cov(res[5], res[6], res[7], res[8], res[9], res[10],
+                                       var_g, var_n, xi)  # eq. 45
                     fill_quat_noise(qw, qx, qy, qz, xi, qt, noise, 1.0)  # eq. 46
                     for k in range(3):
                         for c in range(3):

@@ -67,7 +67,7 @@ def all_accelerometer(out_dir: Path, quick: bool) -> ExperimentResult:
         mag_errors=sim.SensorErrors(noise_density=_MAG_NOISE_UT_SQRT_HZ), seed=2,
     )
     noise = all_accelerometer_noise(array, density, _RATE_HZ)  # eqs. 32-37
-    params = BiasKalmanParams(
+    params = BiasKalmanParams.as_printed(
         gyr_noise_rad_s_sqrt_hz=noise.gyr_noise_rad_s_sqrt_hz,
         gyr_bias_walk_rad_s_sqrt_s=noise.gyr_bias_walk_rad_s_sqrt_s,
         acc_noise_m_s2_sqrt_hz=density / math.sqrt(2.0),  # eq. 42
@@ -172,7 +172,7 @@ def bias_recovery(out_dir: Path, quick: bool) -> ExperimentResult:
         acc_errors=sim.SensorErrors(noise_density=acc_noise),
         mag_errors=sim.SensorErrors(noise_density=mag_noise), seed=1,
     )
-    params = BiasKalmanParams(
+    params = BiasKalmanParams.as_printed(
         gyr_noise_rad_s_sqrt_hz=gyr_noise, gyr_bias_walk_rad_s_sqrt_s=1e-5,
         acc_noise_m_s2_sqrt_hz=acc_noise, acc_motion_fraction=0.0, mag_noise_ut_sqrt_hz=mag_noise,
     )
