@@ -19,14 +19,20 @@ processes: about 2 min for the default 4 β on 2 idle cores.
 Printed: every β's mean RMSE, the per-trial/per-group table of the best β, and for
 comparison margtrack's ``gradient`` filter tuned the same way in the same run (its β grid,
 the table of its best β, which is its documented default).
+
+``--rest-null`` first subtracts from every trial's gyro the null that margtrack's
+``bachmann`` and ``ekf`` take from the still start (``margtrack.filters._rest_null``, 1 s
+minimum), so the filters without a bias state can be compared on the same input.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +42,7 @@ from margtrack import quaternion as quat
 from margtrack.bench.broad import EvaluationResult, format_table, group_order
 from margtrack.bench.tune import tune
 from margtrack.estimators.base import Estimator, Params, State
+from margtrack.filters._rest_null import RestNullState, subtract_rest_null
 from margtrack.filters.gradient import Gradient
 from margtrack.io import broad_trials, read_broad
 from margtrack.recording import Recording
@@ -85,13 +92,24 @@ class AhrsMadgwick(Estimator[AhrsMadgwickParams, State]):
         return out, {}
 
 
-def _recordings(folder: Path) -> list[tuple[Recording, tuple[str, ...]]]:
-    return [(read_broad(t.path), tuple(t.groups)) for t in broad_trials(folder)]
+def _without_rest_null(rec: Recording) -> Recording:
+    """``rec`` with the gyro null of its still start (1 s minimum) subtracted."""
+    dt = np.concatenate([[0.0], np.diff(rec.t)])
+    mag = None if rec.mag is None else rec.mag[None].copy()
+    gyr, _ = subtract_rest_null(
+        RestNullState.new(1), rec.gyr[None].copy(), rec.acc[None].copy(), mag, dt, 1.0
+    )
+    return dataclasses.replace(rec, gyr=gyr[0])
 
 
-def _tune_one(folder: str, beta: float) -> EvaluationResult:
+def _recordings(folder: Path, rest_null: bool = False) -> list[tuple[Recording, tuple[str, ...]]]:
+    recs = [(read_broad(t.path), tuple(t.groups)) for t in broad_trials(folder)]
+    return [(_without_rest_null(r) if rest_null else r, g) for r, g in recs]
+
+
+def _tune_one(folder: str, beta: float, rest_null: bool = False) -> EvaluationResult:
     """One β on every trial (runs in a worker process; reads the trials itself)."""
-    recs = _recordings(Path(folder))
+    recs = _recordings(Path(folder), rest_null)
     return tune(AhrsMadgwick, {"beta": [beta]}, recs, group_order=group_order(Path(folder))).best
 
 
@@ -100,15 +118,19 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=BROAD)
     parser.add_argument("--betas", default=",".join(str(b) for b in DEFAULT_BETAS))
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--rest-null", action="store_true",
+                        help="subtract the still-start gyro null from every trial first")
     args = parser.parse_args()
     betas = [float(b) for b in args.betas.split(",")]
     console = Console()
     n_trials = len(broad_trials(args.data))
     console.print(f"ahrs Madgwick (MARG) on {n_trials} BROAD trials, β grid {betas}, "
-                  f"{args.jobs} process(es)")
+                  f"{args.jobs} process(es)"
+                  + (", gyro null from the still start removed" if args.rest_null else ""))
     start = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        results = list(pool.map(_tune_one, [str(args.data)] * len(betas), betas))
+        work = partial(_tune_one, rest_null=args.rest_null)
+        results = list(pool.map(work, [str(args.data)] * len(betas), betas))
     elapsed = time.perf_counter() - start
     results.sort(key=lambda r: r.mean()["total_rmse_deg"])
     for r in sorted(results, key=lambda r: r.params["beta"]):
@@ -124,7 +146,7 @@ def main() -> None:
     console.print(f"[bold]baseline: ahrs Madgwick β = {best.params['beta']}: mean total RMSE "
                   f"{best.mean()['total_rmse_deg']:.2f} deg[/]")
 
-    recs = _recordings(args.data)
+    recs = _recordings(args.data, args.rest_null)
     ours = tune(Gradient, {"beta": list(GRADIENT_BETAS)}, recs, group_order=group_order(args.data))
     console.print("\nmargtrack gradient (MARG, forward component), same trials, same metric:")
     for r in sorted(ours.results, key=lambda r: r.params["beta"]):
