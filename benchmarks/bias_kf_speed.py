@@ -6,9 +6,11 @@ Input: the 16 BROAD trials of ../shared/data/broad concatenated (858,735 samples
 cut to ``--samples``), or a simulated random motion if the data are absent. Printed, best
 of 3 with compilation excluded:
 
-- batch throughput, samples/s: margtrack ``BiasKalman.run`` for 1 sensor and for 8 sensors
-  in one call; the same filter written with ``np.linalg``/``@`` inside numba (the
-  alternative to the kernel's fixed-size loops, checked to give the same quaternions);
+- batch throughput, samples/s: margtrack ``BiasKalman.run`` (defaults, with margtrack's
+  extensions) for 1 sensor and for 8 sensors in one call, and as printed in 003
+  (``BiasKalmanParams.as_printed()``); the printed filter written with ``np.linalg``/``@``
+  inside numba (the alternative to the kernel's fixed-size loops, checked to give the same
+  quaternions);
   ``ahrs.filters.EKF`` (pure Python, quaternion EKF with acc/mag, on the first
   ``--ahrs-samples``); the all-accelerometer rate solver and the solver + filter pipeline
   at 500 Hz on a simulated tremor recording;
@@ -27,7 +29,12 @@ from numba import njit
 
 from margtrack import frames
 from margtrack.bench.speed import measure, print_table, speed_input
-from margtrack.filters.bias_kf import BiasKalman, initial_covariance, track_all_accelerometer
+from margtrack.filters.bias_kf import (
+    BiasKalman,
+    BiasKalmanParams,
+    initial_covariance,
+    track_all_accelerometer,
+)
 from margtrack.kernels.bias_kf import (
     _triad,
     fill_phi_q,
@@ -108,7 +115,6 @@ def main() -> None:
     t = np.arange(n) / RATE_HZ
     print(f"input: {source}, {n} samples used")
 
-    est = BiasKalman()
     mine = measure("margtrack BiasKalman.run, 1 sensor", lambda: BiasKalman().run(
         gyr=gyr, acc=acc, mag=mag, t=t), n)
     m = min(n, 100_000)
@@ -117,7 +123,10 @@ def main() -> None:
     multi = measure(f"margtrack BiasKalman.run, {N_SENSORS} sensors", lambda: BiasKalman().run(
         gyr=stack[0], acc=stack[1], mag=stack[2], t=t[:m]), N_SENSORS * m)
 
-    p = est.params
+    printed = BiasKalmanParams.as_printed()
+    as_printed = measure("margtrack BiasKalman.run, as printed (003)", lambda: BiasKalman(
+        printed).run(gyr=gyr, acc=acc, mag=mag, t=t), n)
+    p = printed  # the numpy-linalg variant below is the filter as printed
     q0 = BiasKalman().run(gyr=gyr[:1], acc=acc[:1], mag=mag[:1], t=t[:1]).quat[0]
     cov0 = initial_covariance(q0, p.init_angle_std_rad, p.init_bias_std_rad_s)[0]
     dt = np.r_[0.0, np.diff(t)]
@@ -132,7 +141,7 @@ def main() -> None:
     compile_s = time.perf_counter() - start
     linalg = measure("same filter, np.linalg + @ in numba", lambda: bias_kf_linalg(*args_linalg),
                      n, warmup=False)
-    ref = BiasKalman().run(gyr=gyr, acc=acc, mag=mag, t=t).quat
+    ref = BiasKalman(printed).run(gyr=gyr, acc=acc, mag=mag, t=t).quat
     agree = float(np.max(np.abs(np.abs(np.sum(out * ref, axis=1)) - 1.0)))
 
     from ahrs.filters import EKF
@@ -142,7 +151,6 @@ def main() -> None:
         gyr=gyr[:k], acc=acc[:k], mag=mag[:k], frequency=RATE_HZ), k, repeats=1)
 
     from margtrack.estimators.all_accelerometer import all_accelerometer_noise, angular_velocity
-    from margtrack.filters.bias_kf import BiasKalmanParams
     from margtrack.sim import all_accelerometer as aa
 
     rec = aa.simulate_all_accelerometer(
@@ -177,11 +185,12 @@ def main() -> None:
     ahrs_update = measure("ahrs EKF.update", run_ahrs_live, calls)
 
     print("\nbatch (compilation excluded; linalg variant compiled in "
-          f"{compile_s:.1f} s; its quaternions differ from the kernel's by {agree:.1e})")
+          f"{compile_s:.1f} s; its quaternions differ from the kernel's as printed by {agree:.1e})")
     print_table([
         (mine, ""),
         (multi, f"{N_SENSORS} x {m} samples"),
-        (linalg, "7x7 products + inv"),
+        (as_printed, "extensions neutral"),
+        (linalg, "as printed, 7x7 products + inv"),
         (ahrs_batch, f"first {k} samples"),
         (solver, f"{na} samples at 500 Hz"),
         (pipeline, f"{na} samples at 500 Hz"),
