@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
@@ -12,6 +12,16 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
+
+from margtrack.recording import (
+    ACC_UNITS,
+    GYR_UNITS,
+    MAG_UNITS,
+    TIME_UNITS,
+    Recording,
+    UnitError,
+    check_unit_magnitudes,
+)
 
 app = typer.Typer(
     name="margtrack",
@@ -54,6 +64,72 @@ ParamOption = Annotated[
 ]
 
 
+# The units of a recording file's raw columns, declared on every command that reads one.
+GyrUnitOption = Annotated[
+    str | None,
+    typer.Option(
+        "--gyr-unit",
+        help=f"Unit of the file's gyroscope values: {', '.join(GYR_UNITS)} (default: the "
+        "format's own: rad/s in margtrack and BROAD files, deg/s in x-IMU3 exports).",
+    ),
+]
+AccUnitOption = Annotated[
+    str | None,
+    typer.Option(
+        "--acc-unit",
+        help=f"Unit of the file's accelerometer values: {', '.join(ACC_UNITS)} "
+        "(g = 9.80665 m/s²; default: the format's own: m/s² in margtrack and BROAD files, g "
+        "in x-IMU3 exports).",
+    ),
+]
+MagUnitOption = Annotated[
+    str | None,
+    typer.Option(
+        "--mag-unit",
+        help=f"Unit of the file's magnetometer values, converted to µT: {', '.join(MAG_UNITS)} "
+        "(G = gauss; default: kept as stored).",
+    ),
+]
+TimeUnitOption = Annotated[
+    str | None,
+    typer.Option(
+        "--time-unit",
+        help=f"Unit of the file's timestamps: {', '.join(TIME_UNITS)} (default: the "
+        "format's own: s in margtrack files, us in x-IMU3 exports).",
+    ),
+]
+
+
+def _units(
+    gyr_unit: str | None, acc_unit: str | None, mag_unit: str | None, time_unit: str | None
+) -> dict[str, str | None]:
+    """The unit options as keyword arguments of ``io.read`` / ``io.read_any``."""
+    return {"gyr_unit": gyr_unit, "acc_unit": acc_unit, "mag_unit": mag_unit,
+            "time_unit": time_unit}
+
+
+def cli_unit_fix(signal: str, suspected: str) -> str:
+    """The fix sentence of a unit mix-up on the command line: the option to declare."""
+    return f"declare the file's unit with --{signal}-unit {suspected}"
+
+
+def _check_units(rec: Recording, source: object) -> Recording:
+    """``rec`` if its magnitudes look like rad/s and m/s², else a UnitError naming ``source``."""
+    try:
+        check_unit_magnitudes(rec.gyr, rec.acc, fix=cli_unit_fix)
+    except UnitError as exc:
+        raise UnitError(f"{source}: {exc}", signal=exc.signal, suspected=exc.suspected) from None
+    return rec
+
+
+def _read_checked(path: Path, units: dict[str, str | None]) -> list[Recording]:
+    """Every recording at ``path`` (``io.read_any``) in the declared units, magnitudes checked."""
+    from margtrack import io
+
+    recs = io.read_any(path, **units)
+    return [_check_units(r, path if len(recs) == 1 else f"{path} [{r.name}]") for r in recs]
+
+
 def _friendly_errors(func: F) -> F:
     """Turn input errors into a one-line message and exit code 2 instead of a traceback."""
 
@@ -94,12 +170,22 @@ def methods() -> None:
 
 @app.command()
 @_friendly_errors
-def info(path: Annotated[Path, typer.Argument(help="Recording file or folder.")]) -> None:
+def info(
+    path: Annotated[Path, typer.Argument(help="Recording file or folder.")],
+    gyr_unit: GyrUnitOption = None,
+    acc_unit: AccUnitOption = None,
+    mag_unit: MagUnitOption = None,
+    time_unit: TimeUnitOption = None,
+) -> None:
     """Say what a recording holds: samples, rate, duration, units, frame, gaps, truth."""
     from margtrack import io
 
-    recordings = io.read_any(path)
+    recordings = io.read_any(path, **_units(gyr_unit, acc_unit, mag_unit, time_unit))
     for rec in recordings:
+        try:
+            _check_units(rec, path if len(recordings) == 1 else f"{path} [{rec.name}]")
+        except UnitError as exc:  # info describes the file anyway; run and evaluate refuse it
+            err_console.print(f"[yellow]warning:[/] {escape(str(exc))}", soft_wrap=True)
         table = Table(title=f"{rec.name or path.name}", show_header=False)
         table.add_column("field")
         table.add_column("value")
@@ -184,12 +270,16 @@ def run(
     calibration: Annotated[
         Path | None, typer.Option(help="Calibration JSON (margtrack calibrate) to apply first.")
     ] = None,
+    gyr_unit: GyrUnitOption = None,
+    acc_unit: AccUnitOption = None,
+    mag_unit: MagUnitOption = None,
+    time_unit: TimeUnitOption = None,
 ) -> None:
     """Estimate the orientation of a recording and save it (datasets `t` and `quat`)."""
     from margtrack import io, methods
     from margtrack.bench.metrics import error_series, summarize
 
-    rec = io.read(path)
+    rec = _check_units(io.read(path, **_units(gyr_unit, acc_unit, mag_unit, time_unit)), path)
     for name, hit in rec.saturation().items():
         advice = (
             "remove the magnet or metal near the sensor"
@@ -202,12 +292,18 @@ def run(
             f"{advice}",
             soft_wrap=True,
         )
+    values: dict[str, object] = {}
     if calibration is not None:
         from margtrack.calibration import load_calibration
 
-        rec = load_calibration(calibration).apply(rec)
-        console.print(f"applied calibration {calibration}")
-    estimator = methods.create(method, param or ())
+        cal = load_calibration(calibration)
+        rec = cal.apply(rec)
+        values = cal.parameter_values(methods.get(method).params_type)
+        told = ", ".join(f"{k}={v:.4g}" for k, v in values.items())
+        console.print(f"applied calibration {calibration}" + (f"; parameters {told}" if told else ""))
+    # parameters given with -p win over the calibration's
+    values.update(methods.parse_params_items(param or ()))
+    estimator = methods.create(method, values)
     estimate = estimator.run(rec)
     if frame is not None:
         estimate = estimate.in_frame(frame)
@@ -215,6 +311,10 @@ def run(
     console.print(
         f"{estimator.name}: {estimate.n_samples} samples, frame {estimate.frame} -> {output}"
     )
+    if estimate.flags is not None:
+        from margtrack.estimator.flags import summary
+
+        console.print(summary(estimate.flags), soft_wrap=True)
     if rec.quat_true is not None:
         s = summarize(
             error_series(estimate.quat, rec.quat_true, estimate.frame, rec.frame), rec.movement
@@ -234,8 +334,14 @@ def evaluate(
     json_out: Annotated[
         Path | None, typer.Option("--json", help="Write the results as JSON.")
     ] = None,
+    gyr_unit: GyrUnitOption = None,
+    acc_unit: AccUnitOption = None,
+    mag_unit: MagUnitOption = None,
+    time_unit: TimeUnitOption = None,
 ) -> None:
     """Error table (RMSE in degrees) of a method against ground truth."""
+    from rich.progress import Progress
+
     from margtrack import io, methods
     from margtrack.bench import broad
 
@@ -246,11 +352,28 @@ def evaluate(
     def make():
         return cls(params)
 
+    units = _units(gyr_unit, acc_unit, mag_unit, time_unit)
     if path.is_dir() and any(path.glob("*.hdf5")):
-        result = broad.evaluate_folder(path, make, method=cls.name, params=params.as_dict())
+        trials = io.broad_trials(path)
+        order = broad.group_order(path)
+        # one trial in memory at a time, read with the declared units and checked
+        recs: Iterable[tuple[Recording, tuple[str, ...]]] = (
+            (_check_units(io.read(t.path, **units), t.path), tuple(t.groups)) for t in trials
+        )
     else:
-        recs = [(r, ()) for r in io.read_any(path)]
-        result = broad.evaluate_recordings(make, recs, method=cls.name, params=params.as_dict())
+        trials, order = [], ()
+        recs = [(r, ()) for r in _read_checked(path, units)]
+    with Progress(transient=True, disable=not trials) as bar:
+        task = bar.add_task(f"{cls.name} on {len(trials)} trials", total=len(trials))
+
+        def progress(name: str) -> None:
+            bar.update(task, description=f"{cls.name}: {name}")
+            bar.advance(task)
+
+        result = broad.evaluate_recordings(
+            make, recs, method=cls.name, params=params.as_dict(), group_order=order,
+            progress=progress,
+        )
     console.print(broad.format_table(result))
     console.print(
         f"speed: {result.samples_per_s():,.0f} samples/s (including compilation on first use)"
@@ -272,6 +395,10 @@ def tune(
     param: ParamOption = None,
     top: Annotated[int, typer.Option(help="How many of the best points to show.")] = 5,
     json_out: Annotated[Path | None, typer.Option("--json", help="Best result as JSON.")] = None,
+    gyr_unit: GyrUnitOption = None,
+    acc_unit: AccUnitOption = None,
+    mag_unit: MagUnitOption = None,
+    time_unit: TimeUnitOption = None,
 ) -> None:
     """Find one parameter set for all trials that minimises the mean total RMSE."""
     import itertools
@@ -282,6 +409,7 @@ def tune(
     from margtrack.bench import broad
     from margtrack.bench import tune as tuning
 
+    units = _units(gyr_unit, acc_unit, mag_unit, time_unit)
     candidates = tuning.parse_grid(grid)
     fixed = dict(methods.parse_params_items(param or ()))
     n_points = len(list(itertools.product(*candidates.values())))
@@ -289,10 +417,13 @@ def tune(
         loading = bar.add_task("reading recordings", total=None)
         if path.is_dir() and any(path.glob("*.hdf5")):
             trials = io.broad_trials(path)
-            recordings = [(io.read_broad(t.path), tuple(t.groups)) for t in trials]
+            recordings = [
+                (_check_units(io.read(t.path, **units), t.path), tuple(t.groups))
+                for t in trials
+            ]
             order = broad.group_order(path)
         else:
-            recordings = [(r, ()) for r in io.read_any(path)]
+            recordings = [(r, ()) for r in _read_checked(path, units)]
             order = ()
         bar.remove_task(loading)
         task = bar.add_task(f"tuning {method}", total=n_points)

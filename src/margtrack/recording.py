@@ -1,13 +1,17 @@
 """Recording: one sensor's timestamped MARG signals, optional ground truth, and their validation.
 
 Units inside a Recording are always SI: time in s, angular rate in rad/s, specific force
-in m/s², magnetic field in any consistent unit (µT preferred). Readers and
-:meth:`Recording.from_arrays` convert other units when told the unit, and refuse data
-whose magnitudes betray a unit mix-up (gyr in deg/s, acc in g) with the fix in the message.
+in m/s², magnetic field in any consistent unit (µT preferred). The units a signal can be
+declared in are listed once, in :data:`UNITS` (factors to rad/s, m/s², µT and s).
+:meth:`Recording.with_units`, :meth:`Recording.from_arrays` and the readers
+(``margtrack.io.read(..., gyr_unit=...)``) convert declared units;
+:func:`check_unit_magnitudes` refuses data whose magnitudes betray a unit mix-up (gyr in
+deg/s, acc in g) with a :class:`UnitError` whose message names the fix on the caller's path.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -18,8 +22,21 @@ from margtrack.frames import STANDARD_GRAVITY_M_S2, Frame, check_frame
 
 Array = NDArray[np.float64]
 
-GYR_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
-ACC_UNITS = {"m/s2": 1.0, "m/s^2": 1.0, "m/s²": 1.0, "g": STANDARD_GRAVITY_M_S2}
+# --- units --------------------------------------------------------------------------------
+# The one declaration of every unit a signal can be given in: value in the library's unit =
+# value in the declared unit * factor. gyr -> rad/s, acc -> m/s², mag -> µT, time -> s.
+GYR_UNITS: Mapping[str, float] = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
+ACC_UNITS: Mapping[str, float] = {
+    "m/s2": 1.0, "m/s^2": 1.0, "m/s²": 1.0, "g": STANDARD_GRAVITY_M_S2,
+}
+MAG_UNITS: Mapping[str, float] = {
+    "uT": 1.0, "µT": 1.0, "nT": 1e-3, "mT": 1e3, "G": 100.0, "mG": 0.1, "T": 1e6,
+}
+TIME_UNITS: Mapping[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
+UNITS: Mapping[str, Mapping[str, float]] = {
+    "gyr": GYR_UNITS, "acc": ACC_UNITS, "mag": MAG_UNITS, "time": TIME_UNITS,
+}
+SI_UNITS: Mapping[str, str] = {"gyr": "rad/s", "acc": "m/s2", "mag": "uT", "time": "s"}
 
 # Above this many rad/s on any axis a MEMS gyroscope (ranges up to ±2000 deg/s = 34.9 rad/s)
 # cannot have measured it; the numbers are almost certainly deg/s.
@@ -27,7 +44,98 @@ _GYR_RAD_S_IMPLAUSIBLE = 40.0
 # A recording's median acceleration norm is about 9.8 in m/s²; between these bounds it is in g.
 _ACC_G_LIKELY = (0.5, 2.0)
 
-__all__ = ["Recording", "Saturation", "check_unit_magnitudes", "find_saturation", "resample"]
+__all__ = [
+    "ACC_UNITS",
+    "GYR_UNITS",
+    "MAG_UNITS",
+    "SI_UNITS",
+    "TIME_UNITS",
+    "UNITS",
+    "Recording",
+    "Saturation",
+    "UnitError",
+    "check_unit_magnitudes",
+    "convert_unit",
+    "find_saturation",
+    "resample",
+    "unit_factor",
+    "unit_fix_api",
+    "unit_fix_keyword",
+]
+
+
+def unit_factor(signal: str, unit: str) -> float:
+    """The factor taking ``signal`` values in ``unit`` to rad/s, m/s², µT or s.
+
+    ``signal`` is "gyr", "acc", "mag" or "time". An unknown unit raises ``ValueError``
+    listing the valid ones, e.g. ``gyr_unit must be one of ['deg/s', 'rad/s'], got 'rpm'``.
+    """
+    if signal not in UNITS:
+        raise ValueError(f"signal must be one of {sorted(UNITS)}, got {signal!r}")
+    table = UNITS[signal]
+    if unit not in table:
+        raise ValueError(f"{signal}_unit must be one of {sorted(table)}, got {unit!r}")
+    return table[unit]
+
+
+def convert_unit(values: ArrayLike, signal: str, unit: str) -> Array:
+    """``values`` (any shape) of ``signal`` in ``unit``, converted to rad/s, m/s², µT or s.
+
+    Decimal sub-units (ms, nT, mG...) are divided by the exact power of ten (1e3) rather
+    than multiplied by its inexact reciprocal (1e-3): one rounding instead of two, so
+    ``t_ms / 1e3`` reproduces the seconds a file was written from whenever ``t_s * 1e3``
+    was exact.
+    """
+    factor = unit_factor(signal, unit)
+    arr = np.asarray(values, dtype=np.float64)
+    if factor < 1.0:
+        inverse = float(round(1.0 / factor))
+        if 1.0 / inverse == factor:  # factor is the double nearest 1/inverse: 1e-3, 1e-9...
+            return arr / inverse
+    return arr * factor
+
+
+class UnitError(ValueError):
+    """Magnitudes that betray a unit mix-up: gyr in deg/s or acc in g.
+
+    Attributes
+    ----------
+    signal : "gyr" or "acc".
+    suspected : the unit the data is probably in, "deg/s" or "g".
+    """
+
+    def __init__(self, message: str, *, signal: str, suspected: str) -> None:
+        super().__init__(message)
+        self.signal = signal
+        self.suspected = suspected
+
+
+def unit_fix_api(signal: str, suspected: str) -> str:
+    """The fix sentence for Python callers of the estimators (``check_unit_magnitudes``' default).
+
+    ``unit_fix_api("gyr", "deg/s")`` is ``"pass gyr_unit='deg/s' to run() or convert with
+    Recording.with_units(gyr='deg/s')"``.
+    """
+    return (
+        f"pass {signal}_unit={suspected!r} to run() or convert with "
+        f"Recording.with_units({signal}={suspected!r})"
+    )
+
+
+def unit_fix_keyword(where: str) -> Callable[[str, str], str]:
+    """A fix naming the ``<signal>_unit`` keyword of ``where`` (a function that has it).
+
+    ``unit_fix_keyword("read_csv")("acc", "g")`` is ``"pass acc_unit='g' to read_csv (or
+    check_units=False if it really is m/s2)"``.
+    """
+
+    def fix(signal: str, suspected: str) -> str:
+        return (
+            f"pass {signal}_unit={suspected!r} to {where} "
+            f"(or check_units=False if it really is {SI_UNITS[signal]})"
+        )
+
+    return fix
 
 
 def _array(
@@ -71,26 +179,56 @@ def _check_timestamps(t: Array) -> None:
         )
 
 
-def check_unit_magnitudes(gyr_rad_s: Array, acc_m_s2: Array) -> None:
-    """Raise ``ValueError`` if gyr looks like deg/s or acc looks like g (magnitude heuristics)."""
-    if gyr_rad_s.size:
-        peak = np.abs(gyr_rad_s).max()
-        if peak > _GYR_RAD_S_IMPLAUSIBLE:
-            i = int(np.argwhere(np.abs(gyr_rad_s) == peak)[0][0])
-            raise ValueError(
-                f"gyr reaches {peak:.1f} rad/s at sample {i}, more than any MEMS gyroscope "
-                "measures; the data is probably in deg/s: pass gyr_unit='deg/s' to convert "
-                "(or check_units=False if it really is rad/s)"
+def _gyr_hits_needed(n: int) -> int:
+    """Samples beyond 40 rad/s that betray deg/s in a series of n: 0.1 % and at least 3
+    (fewer in very short series, down to 1 of 1)."""
+    return max(min(3, -(-n // 10)), -(-n // 1000), 1)
+
+
+def check_unit_magnitudes(
+    gyr_rad_s: Array, acc_m_s2: Array, *, fix: Callable[[str, str], str] | None = None
+) -> None:
+    """Raise :class:`UnitError` if gyr looks like deg/s or acc looks like g.
+
+    Parameters
+    ----------
+    gyr_rad_s : (N, 3) angular rate that should be rad/s (may be empty). Refused if a
+        share of samples (0.1 %, at least 3) exceeds 40 rad/s, more than any MEMS gyroscope
+        measures (±2000 deg/s is 34.9); a single spike is a glitch, not a unit.
+    acc_m_s2 : (N, 3) specific force that should be m/s² (may be empty). Refused if its
+        median norm lies between 0.5 and 2 (about 1 g rather than 9.81 m/s²).
+    fix : ``fix(signal, suspected)`` returns the sentence telling the caller how to declare
+        the unit on its own path (an option, a keyword); default :func:`unit_fix_api`.
+
+    The message names the offending sample (gyr) or the median norm (acc), the suspected
+    unit and the fix.
+    """
+    fix = unit_fix_api if fix is None else fix
+    gyr = np.asarray(gyr_rad_s, dtype=np.float64)
+    acc = np.asarray(acc_m_s2, dtype=np.float64)
+    if gyr.size:
+        # samples beyond any MEMS range; a spike or two is a glitch (the estimators flag and
+        # skip it), a share of a recording is a unit
+        over = np.flatnonzero(np.any(np.abs(gyr) > _GYR_RAD_S_IMPLAUSIBLE, axis=-1))
+        if over.size >= _gyr_hits_needed(gyr.shape[0]):
+            peak = float(np.abs(gyr).max())
+            i = int(np.argwhere(np.abs(gyr) == peak)[0][0])
+            raise UnitError(
+                f"gyr reaches {peak:.1f} rad/s at sample {i} and exceeds "
+                f"{_GYR_RAD_S_IMPLAUSIBLE:g} rad/s on {over.size} of {gyr.shape[0]} samples "
+                f"(first at sample {int(over[0])}), more than any MEMS gyroscope measures; "
+                f"the data is probably in deg/s: {fix('gyr', 'deg/s')}",
+                signal="gyr", suspected="deg/s",
             )
-    if acc_m_s2.size:
+    if acc.size:
         # the median of an evenly strided subsample: as telling, and cheap on long series
-        stride = max(1, acc_m_s2.shape[0] // 20_000)
-        median_norm = float(np.median(np.linalg.norm(acc_m_s2[::stride], axis=1)))
+        stride = max(1, acc.shape[0] // 20_000)
+        median_norm = float(np.median(np.linalg.norm(acc[::stride], axis=1)))
         if _ACC_G_LIKELY[0] < median_norm < _ACC_G_LIKELY[1]:
-            raise ValueError(
+            raise UnitError(
                 f"acc has a median norm of {median_norm:.3f}, about 1 g rather than 9.81 m/s²; "
-                "the data is probably in g: pass acc_unit='g' to convert "
-                "(or check_units=False if it really is m/s²)"
+                f"the data is probably in g: {fix('acc', 'g')}",
+                signal="acc", suspected="g",
             )
 
 
@@ -239,12 +377,9 @@ class Recording:
         deg/s or g is refused with the fix in the message. Other keyword arguments
         (``quat_true``, ``movement``, ``frame``, ``name``, ``meta``) go to the constructor.
         """
-        if gyr_unit not in GYR_UNITS:
-            raise ValueError(f"gyr_unit must be one of {sorted(GYR_UNITS)}, got {gyr_unit!r}")
-        if acc_unit not in ACC_UNITS:
-            raise ValueError(f"acc_unit must be one of {sorted(ACC_UNITS)}, got {acc_unit!r}")
-        gyr_arr = _array(gyr, "gyr", 3) * GYR_UNITS[gyr_unit]
-        acc_arr = _array(acc, "acc", 3) * ACC_UNITS[acc_unit]
+        gyr_factor, acc_factor = unit_factor("gyr", gyr_unit), unit_factor("acc", acc_unit)
+        gyr_arr = _array(gyr, "gyr", 3) * gyr_factor
+        acc_arr = _array(acc, "acc", 3) * acc_factor
         n = gyr_arr.shape[0]
         if (t is None) == (rate_hz is None):
             raise ValueError(
@@ -255,7 +390,7 @@ class Recording:
                 raise ValueError(f"rate_hz must be a finite number > 0, got {rate_hz}")
             t = np.arange(n) / float(rate_hz)
         if check_units:
-            check_unit_magnitudes(gyr_arr, acc_arr)
+            check_unit_magnitudes(gyr_arr, acc_arr, fix=unit_fix_keyword("from_arrays"))
         return cls(t=t, gyr=gyr_arr, acc=acc_arr, mag=mag, **fields)
 
     @property
@@ -314,6 +449,64 @@ class Recording:
     def without_mag(self) -> Recording:
         """The same recording with the magnetometer removed (for 6-D estimation)."""
         return replace(self, mag=None)
+
+    def with_units(
+        self,
+        *,
+        gyr: str | None = None,
+        acc: str | None = None,
+        mag: str | None = None,
+        time: str | None = None,
+    ) -> Recording:
+        """A new Recording converted to SI (and µT) from the units its arrays are really in.
+
+        Use it when a file or arrays hold other units than the Recording's (a logger writing
+        deg/s into a column the reader takes for rad/s).
+
+        Parameters
+        ----------
+        gyr : unit of ``self.gyr``: "rad/s" or "deg/s"; converted to rad/s.
+        acc : unit of ``self.acc``: "m/s2" (also "m/s^2", "m/s²") or "g" (9.80665 m/s²);
+            converted to m/s².
+        mag : unit of ``self.mag``: "uT" ("µT"), "nT", "mT", "T", "G" (gauss) or "mG";
+            converted to µT. Ignored when the recording has no magnetometer.
+        time : unit of ``self.t``: "s", "ms", "us" ("µs") or "ns"; converted to s.
+            None (every argument's default) means the values are already in the library's unit.
+
+        Returns
+        -------
+        The converted Recording; ``meta["units_converted"]`` maps each converted signal
+        ("gyr", "acc", "mag", "time") to the unit it was converted from (declarations that
+        change nothing, like ``gyr="rad/s"``, are not recorded).
+
+        Raises
+        ------
+        ValueError : for an unknown unit (listing the valid ones), or when a signal that
+            ``meta["units_converted"]`` says was already converted is declared again in a
+            non-SI unit (converting twice is always wrong).
+        """
+        declared = {"gyr": gyr, "acc": acc, "mag": mag, "time": time}
+        done = dict(self.meta.get("units_converted") or {})
+        changes: dict[str, Any] = {}
+        converted: dict[str, str] = {}
+        for signal, unit in declared.items():
+            if unit is None:
+                continue
+            if unit_factor(signal, unit) == 1.0 or (signal == "mag" and self.mag is None):
+                continue
+            if signal in done:
+                raise ValueError(
+                    f"{signal} was already converted from {done[signal]} "
+                    f"(meta['units_converted']); declaring {signal} in {unit} again would "
+                    "convert it twice: leave the declaration out"
+                )
+            name = "t" if signal == "time" else signal
+            changes[name] = convert_unit(getattr(self, name), signal, unit)
+            converted[signal] = unit
+        if not converted:
+            return replace(self)
+        meta = {**self.meta, "units_converted": {**done, **converted}}
+        return replace(self, meta=meta, **changes)
 
 
 def resample(t_src: ArrayLike, values: ArrayLike, t_dst: ArrayLike) -> Array:

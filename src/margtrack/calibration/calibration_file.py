@@ -244,6 +244,31 @@ class Calibration:
             meta=meta,
         )
 
+    def parameter_values(self, params_type: type) -> dict[str, float]:
+        """The parameters of a method this calibration sets, by their declarations.
+
+        Every parameter declared with ``calibrated_by="reference.field_ut"`` (or
+        ``"noise.<field>"``) takes that quantity when the file has it: the reference field
+        (000 App. B step 18: norm and dip) reaches every method, the Allan noise densities
+        (003 III-B) the noise parameters of the methods that declare them. A quantity in
+        rad is converted to deg for a parameter whose unit is in deg.
+        """
+        from margtrack.estimator.params import specs
+
+        out: dict[str, float] = {}
+        for spec in specs(params_type):
+            if not spec.calibrated_by:
+                continue
+            part, _, name = spec.calibrated_by.partition(".")
+            source = {"reference": self.reference, "noise": self.noise}.get(part)
+            if source is None:
+                continue
+            value = float(getattr(source, name))
+            if "rad" in name and spec.unit.startswith("deg"):
+                value = math.degrees(value)
+            out[spec.name] = value
+        return out
+
     def to_dict(self) -> dict[str, Any]:
         """The JSON layout: format, version, model, gyr, acc, mag, reference, noise, ..."""
         return {

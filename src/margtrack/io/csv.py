@@ -25,7 +25,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from margtrack.frames import check_frame
 from margtrack.io.hdf5 import _existing_file, _naming_path, _writable, meta_to_json
-from margtrack.recording import Recording
+from margtrack.recording import (
+    Recording,
+    check_unit_magnitudes,
+    convert_unit,
+    unit_factor,
+    unit_fix_keyword,
+)
 
 __all__ = ["read_csv", "write_csv", "write_estimate_csv"]
 
@@ -40,8 +46,6 @@ _FIELD_COLUMNS = {
     "movement": ["movement"],
 }
 _FIELD_WIDTHS = {"t": 1, "gyr": 3, "acc": 3, "mag": 3, "quat_true": 4, "movement": 1}
-# Divide raw timestamps by these to get seconds (division by a power of ten is correctly rounded).
-TIME_UNITS = {"s": 1.0, "ms": 1e3, "us": 1e6, "µs": 1e6, "ns": 1e9}
 
 
 def _header(path: Path) -> tuple[list[str], list[str], int]:
@@ -178,6 +182,7 @@ def read_csv(
     rate_hz: float | None = None,
     frame: str | None = None,
     check_units: bool = True,
+    mag_unit: str | None = None,
 ) -> Recording:
     """Read a Recording from margtrack CSV, or from any comma-separated file via ``columns``.
 
@@ -191,16 +196,20 @@ def read_csv(
     gyr_unit : "rad/s" or "deg/s", the unit of the gyr columns (converted to rad/s).
     acc_unit : "m/s2" or "g", the unit of the acc columns (converted to m/s²).
     time_unit : "s", "ms", "us" or "ns", the unit of the time column (converted to s).
+    mag_unit : the unit of the mag columns, one of ``margtrack.recording.MAG_UNITS`` ("uT",
+        "nT", "G"...), converted to µT; None (default) keeps the values as they are.
     rate_hz : the sampling rate, Hz, required when no time column is mapped (never assumed);
         giving both a time column and ``rate_hz`` is an error.
     frame : earth frame of ``quat_true``; None means the file's frame for margtrack CSV and
         "ENU" otherwise.
     check_units : refuse gyr that looks like deg/s and acc that looks like g (mapped files;
-        margtrack CSV is SI by construction).
+        margtrack CSV is SI by construction) with a :class:`~margtrack.recording.UnitError`.
 
     Returns
     -------
-    Recording named after the file stem (mapped files), with ``meta["source"]`` the path.
+    Recording named after the file stem (mapped files), with ``meta["source"]`` the path,
+    ``meta["units"]`` the declared units and ``meta["units_converted"]`` those that changed
+    the values (see :meth:`~margtrack.recording.Recording.with_units`).
     """
     p = _existing_file(path)
     comments, header, skip = _header(p)
@@ -213,7 +222,8 @@ def read_csv(
                 f"; its columns are {header}"
             )
         given = {"gyr_unit": (gyr_unit, "rad/s"), "acc_unit": (acc_unit, "m/s2"),
-                 "time_unit": (time_unit, "s"), "rate_hz": (rate_hz, None)}
+                 "time_unit": (time_unit, "s"), "mag_unit": (mag_unit, None),
+                 "rate_hz": (rate_hz, None)}
         for arg, (value, default) in given.items():
             if value != default:
                 raise ValueError(
@@ -224,14 +234,16 @@ def read_csv(
         if frame is not None and check_frame(frame) != rec.frame:
             raise ValueError(f"{p} has frame {rec.frame}, not {frame!r}; leave frame=None")
         return rec
-    return _read_mapped(p, header, skip, columns, gyr_unit, acc_unit, time_unit, rate_hz,
+    units = {"gyr": gyr_unit, "acc": acc_unit, "t": time_unit}
+    if mag_unit is not None:
+        units["mag"] = mag_unit
+    return _read_mapped(p, header, skip, columns, units, rate_hz,
                         "ENU" if frame is None else frame, check_units)
 
 
 def _read_mapped(
     path: Path, header: list[str], skip: int, columns: Mapping[str, Sequence[str] | str],
-    gyr_unit: str, acc_unit: str, time_unit: str, rate_hz: float | None, frame: str,
-    check_units: bool,
+    units: dict[str, str], rate_hz: float | None, frame: str, check_units: bool,
 ) -> Recording:
     unknown = sorted(set(columns) - set(_FIELD_WIDTHS))
     if unknown:
@@ -239,8 +251,8 @@ def _read_mapped(
     for required in ("gyr", "acc"):
         if required not in columns:
             raise ValueError(f"columns must map {required!r} to 3 column names (x, y, z)")
-    if time_unit not in TIME_UNITS:
-        raise ValueError(f"time_unit must be one of {sorted(TIME_UNITS)}, got {time_unit!r}")
+    for signal, unit in units.items():
+        unit_factor("time" if signal == "t" else signal, unit)  # unknown units fail early
     if "t" in columns and rate_hz is not None:
         raise ValueError("give either a time column (columns['t']) or rate_hz, not both")
     if "t" not in columns and rate_hz is None:
@@ -261,19 +273,28 @@ def _read_mapped(
     with _naming_path(path):
         if "movement" in data:
             extra["movement"] = _movement(data["movement"], mapping["movement"][0])
-        t = data["t"] / TIME_UNITS[time_unit] if "t" in data else None
-        meta = {
-            "source": str(path),
-            "columns": mapping,
-            "units": {"gyr": gyr_unit, "acc": acc_unit, "t": time_unit},
+        t = convert_unit(data["t"], "time", units["t"]) if "t" in data else None
+        mag = data.get("mag")
+        if mag is not None and "mag" in units:
+            mag = convert_unit(mag, "mag", units["mag"])
+        converted = {
+            "time" if signal == "t" else signal: unit for signal, unit in units.items()
+            if unit_factor("time" if signal == "t" else signal, unit) != 1.0
+            and (signal != "mag" or mag is not None)
         }
+        meta: dict[str, Any] = {"source": str(path), "columns": mapping, "units": units}
+        if converted:
+            meta["units_converted"] = converted
         if rate_hz is not None:
             meta["rate_hz"] = float(rate_hz)
-        return Recording.from_arrays(
-            data["gyr"], data["acc"], data.get("mag"), t=t, rate_hz=rate_hz,
-            gyr_unit=gyr_unit, acc_unit=acc_unit, check_units=check_units,
+        rec = Recording.from_arrays(
+            data["gyr"], data["acc"], mag, t=t, rate_hz=rate_hz,
+            gyr_unit=units["gyr"], acc_unit=units["acc"], check_units=False,
             frame=frame, name=path.stem, meta=meta, **extra,
         )
+        if check_units:
+            check_unit_magnitudes(rec.gyr, rec.acc, fix=unit_fix_keyword("read_csv"))
+        return rec
 
 
 def _output_columns(name: str, value: NDArray[Any], n: int) -> tuple[list[str], NDArray[Any]]:
@@ -302,7 +323,7 @@ def write_estimate_csv(
     outputs : other per-sample series, name (with its unit, e.g. ``"bias_rad_s"``) to array
         with first axis N. (N,) gives one column ``name``; (N, 3) gives ``name_x/_y/_z``;
         any other shape is flattened row-major per sample to ``name_0 .. name_{k-1}``.
-        Booleans are written as 1.0 and 0.0.
+        Booleans and integers (flags) are written as whole numbers (1, 0, 34).
     """
     t_arr = np.asarray(t, dtype=np.float64)
     q_arr = np.asarray(quat, dtype=np.float64)
@@ -313,15 +334,21 @@ def write_estimate_csv(
         raise ValueError(f"quat must have shape ({n}, 4) to match t, got {q_arr.shape}")
     names = ["t_s", "quat_w", "quat_x", "quat_y", "quat_z"]
     blocks: list[NDArray[Any]] = [t_arr[:, None], q_arr]
+    integer: list[bool] = [False] * 5
     for name, value in (outputs or {}).items():
         arr = np.asarray(value)
         if arr.dtype == bool:
             arr = arr.astype(np.int64)
         cols, flat = _output_columns(name, arr.astype(np.float64), n)
         names += cols
+        integer += [np.issubdtype(arr.dtype, np.integer)] * len(cols)
         blocks.append(flat)
     duplicated = sorted({c for c in names if names.count(c) > 1})
     if duplicated:
         raise ValueError(f"output columns {duplicated} clash; rename the outputs")
-    rows = [",".join(map(repr, row)) for row in np.hstack(blocks).tolist()]
+    formats = [(lambda v: str(int(v))) if is_int else repr for is_int in integer]
+    rows = [
+        ",".join(f(v) for f, v in zip(formats, row, strict=True))
+        for row in np.hstack(blocks).tolist()
+    ]
     _writable(path).write_text("\n".join([",".join(names), *rows]) + "\n", encoding="utf-8")

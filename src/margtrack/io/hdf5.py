@@ -21,7 +21,7 @@ import h5py
 import numpy as np
 from numpy.typing import ArrayLike
 
-from margtrack.recording import Recording
+from margtrack.recording import Recording, UnitError
 
 __all__ = ["read_hdf5", "write_estimate_hdf5", "write_hdf5"]
 
@@ -52,6 +52,8 @@ def _naming_path(path: Path) -> Iterator[None]:
     """Re-raise a ``ValueError`` from the block with ``path`` in front of its message."""
     try:
         yield
+    except UnitError as exc:  # keep the type: callers tell unit mix-ups from other errors
+        raise UnitError(f"{path}: {exc}", signal=exc.signal, suspected=exc.suspected) from None
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
 

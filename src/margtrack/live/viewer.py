@@ -34,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from margtrack import frames as frames_mod
 from margtrack.body.offsets import Heading
+from margtrack.estimator.params import specs
 from margtrack.live.engine import Engine, Pose
 from margtrack.live.protocol import Source
 
@@ -155,17 +156,25 @@ class LiveViewer:
             self._record = gui.add_button("Start recording", disabled=self.engine.avatars is None)
             self._record.on_click(lambda _: self._toggle_recording())
         with gui.add_folder(f"Filter: {self.engine.method}"):
-            for f in dataclasses.fields(self.engine.params):
-                value = getattr(self.engine.params, f.name)
-                if f.name == "frame" or value is None or isinstance(value, (tuple, str)):
+            for spec in specs(self.engine.params):
+                value = getattr(self.engine.params, spec.name)
+                if spec.name == "frame" or value is None or isinstance(value, (tuple, str)):
                     continue
                 if isinstance(value, bool):
-                    handle = gui.add_checkbox(f.name, initial_value=value)
+                    handle = gui.add_checkbox(spec.label, initial_value=value, hint=spec.help)
                 else:
-                    handle = gui.add_number(f.name, initial_value=value,
-                                            step=1 if isinstance(value, int) else _step(value))
-                handle.on_update(self._param_callback(f.name, handle))
-                self._controls[f.name] = handle
+                    low = spec.ge if spec.ge is not None else spec.gt
+                    high = spec.le if spec.le is not None else spec.lt
+                    handle = gui.add_number(
+                        spec.label,
+                        initial_value=value,
+                        min=low,
+                        max=high,
+                        step=1 if isinstance(value, int) else _step(value),
+                        hint=f"{spec.help} ({spec.bounds_text()} {spec.unit})".strip(),
+                    )
+                handle.on_update(self._param_callback(spec.name, handle))
+                self._controls[spec.name] = handle
         with gui.add_folder("Sensors"):
             self._sensors = gui.add_markdown("")
 
