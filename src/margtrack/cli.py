@@ -146,26 +146,45 @@ def _friendly_errors(func: F) -> F:
 
 @app.command()
 @_friendly_errors
-def methods() -> None:
-    """List the estimation methods and their parameters with defaults."""
-    import dataclasses
-
+def methods(
+    name: Annotated[
+        str | None, typer.Argument(help="A method: list its parameters (unit, range, help).")
+    ] = None,
+) -> None:
+    """List the estimation methods, or one method's parameters with unit, range and help."""
     from margtrack import methods as registry
+    from margtrack.estimator.params import Params, specs
 
-    table = Table(title="margtrack methods")
-    table.add_column("name")
-    table.add_column("what")
-    table.add_column("parameters (default)")
-    for name in registry.available():
-        cls = registry.get(name)
-        defaults = cls.params_type()
-        params = ", ".join(
-            f"{f.name}={getattr(defaults, f.name)!r}" for f in dataclasses.fields(defaults)
-        )
-        doc = (cls.__doc__ or "").strip().splitlines()[0]
-        star = " [green](default)[/]" if name == registry.DEFAULT_METHOD else ""
-        table.add_row(name + star, doc, params)
-    console.print(table)
+    if name is None:
+        table = Table(title="margtrack methods (margtrack methods NAME lists its parameters)")
+        table.add_column("name", no_wrap=True)
+        table.add_column("what")
+        for method in registry.available():
+            cls = registry.get(method)
+            doc = (cls.__doc__ or "").strip().splitlines()[0].replace("``", "")
+            star = " [green](default)[/]" if method == registry.DEFAULT_METHOD else ""
+            table.add_row(method + star, doc)
+        console.print(table)
+        return
+    cls = registry.get(name)
+    shared = {spec.name for spec in specs(Params)}
+    own = [s for s in specs(cls.params_type) if s.name not in shared]
+    base = [s for s in specs(cls.params_type) if s.name in shared]
+    what = (cls.__doc__ or "").strip().splitlines()[0].replace("``", "")
+    for title, rows in ((f"{cls.name}: {what}", own),
+                        ("input policy and frame (every method)", base)):
+        if not rows:
+            console.print(f"{title}\n  (no parameters of its own)")
+            continue
+        table = Table(title=title, title_justify="left")
+        table.add_column("parameter", no_wrap=True)
+        table.add_column("default", no_wrap=True)
+        table.add_column("unit", no_wrap=True)
+        table.add_column("range")
+        table.add_column("what")
+        for spec in rows:
+            table.add_row(spec.name, repr(spec.default), spec.unit, spec.bounds_text(), spec.help)
+        console.print(table)
 
 
 @app.command()
