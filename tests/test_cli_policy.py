@@ -78,7 +78,7 @@ def test_the_calibration_reference_field_reaches_the_method(broken_file, tmp_pat
     path = save_calibration(cal, tmp_path / "cal.json")
     result = _invoke(["run", broken_file, "-o", tmp_path / "x.h5", "--calibration", path])
     assert result.exit_code == 0, result.output
-    assert "mag_norm_ref=50" in result.output and "mag_dip_ref_deg=60" in result.output
+    assert "sets mag_norm_ref=50" in result.output and "mag_dip_ref_deg=60" in result.output
     # -p wins over the file
     result = _invoke(["run", broken_file, "-o", tmp_path / "y.h5", "--calibration", path,
                       "-p", "mag_dip_ref_deg=55"])

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from margtrack.frames import STANDARD_GRAVITY_M_S2
-from margtrack.recording import Recording, check_unit_magnitudes, resample
+from margtrack.recording import Recording, resample
+from margtrack.units import check_unit_magnitudes
 
 N = 10
 

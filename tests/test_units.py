@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from margtrack import io
-from margtrack.recording import (
+from margtrack.recording import Recording
+from margtrack.units import (
     ACC_UNITS,
     GYR_UNITS,
     MAG_UNITS,
     TIME_UNITS,
-    Recording,
     UnitError,
     check_unit_magnitudes,
     convert_unit,

@@ -13,12 +13,12 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from margtrack.recording import (
+from margtrack.recording import Recording
+from margtrack.units import (
     ACC_UNITS,
     GYR_UNITS,
     MAG_UNITS,
     TIME_UNITS,
-    Recording,
     UnitError,
     check_unit_magnitudes,
 )
@@ -319,7 +319,7 @@ def run(
         rec = cal.apply(rec)
         values = cal.parameter_values(methods.get(method).params_type)
         told = ", ".join(f"{k}={v:.4g}" for k, v in values.items())
-        console.print(f"applied calibration {calibration}" + (f"; parameters {told}" if told else ""))
+        console.print(f"applied calibration {calibration}" + (f"; sets {told}" if told else ""))
     # parameters given with -p win over the calibration's
     values.update(methods.parse_params_items(param or ()))
     estimator = methods.create(method, values)

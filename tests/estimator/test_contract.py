@@ -10,7 +10,8 @@ from margtrack import quaternion as quat
 from margtrack.estimator import Flag
 from margtrack.estimator.contract import initial_orientation
 from margtrack.filters.gyro import GyroIntegration
-from margtrack.recording import Recording, UnitError
+from margtrack.recording import Recording
+from margtrack.units import UnitError
 
 pytestmark = pytest.mark.kernel
 
@@ -279,7 +280,8 @@ def test_registry_and_parameter_parsing():
         methods.get("nope")
     est = methods.create("gyro", ["frame=ned"])
     assert est.params.frame == "NED"
-    with pytest.raises(ValueError, match=r"parameter\(s\) gain for GyroParams; valid: acc_range_g, frame, gyr_range"):
+    valid = r"parameter\(s\) gain for GyroParams; valid: acc_range_g, frame, gyr_range"
+    with pytest.raises(ValueError, match=valid):
         methods.create("gyro", ["gain=3"])
     with pytest.raises(ValueError, match="frame must be 'NED' or 'ENU'"):
         methods.create("gyro", {"frame": "NWU"})

@@ -1,6 +1,6 @@
 """Unit checks on every path: deg/s gyroscopes and g accelerometers are refused with the fix.
 
-The heuristics (``recording.check_unit_magnitudes``): a gyroscope in deg/s read as rad/s
+The heuristics (``units.check_unit_magnitudes``): a gyroscope in deg/s read as rad/s
 exceeds any MEMS range (40 rad/s) on a good share of a moving recording's samples, while
 a spike or two does not; an accelerometer in g has a median norm near 1 instead of 9.81.
 Whole series are checked at once; ``update`` checks a running window of its first
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from margtrack import recording
+from margtrack import units
 
 Array = NDArray[np.float64]
 
@@ -20,8 +20,8 @@ __all__ = ["UnitProbe", "check_series_units", "scale_to_si"]
 
 _FIXES = {
     "arrays": {
-        "gyr": "pass gyr_unit='deg/s' to run() (or check_units=False if it really is rad/s)",
-        "acc": "pass acc_unit='g' to run() (or check_units=False if it really is m/s²)",
+        "gyr": units.unit_fix_keyword("run()")("gyr", "deg/s"),
+        "acc": units.unit_fix_keyword("run()")("acc", "g"),
     },
     "recording": {
         "gyr": "convert it with rec.with_units(gyr='deg/s') or read it with "
@@ -33,26 +33,22 @@ _FIXES = {
         "gyr": "convert to rad/s before update() (multiply deg/s by pi/180)",
         "acc": "convert to m/s² before update() (multiply g by 9.80665)",
     },
-    "cli": {
-        "gyr": "declare the file's unit with --gyr-unit deg/s",
-        "acc": "declare the file's unit with --acc-unit g",
-    },
 }
 
 
 def scale_to_si(signal: str, unit: str) -> float:
     """Factor taking ``signal`` ("gyr" or "acc") from ``unit`` to rad/s or m/s²."""
-    return recording.unit_factor(signal, unit)
+    return units.unit_factor(signal, unit)
 
 
 def check_series_units(gyr: Array | None, acc: Array, path: str) -> None:
-    """Raise ``recording.UnitError`` if gyr (N, 3) looks like deg/s or acc (N, 3) like g.
+    """Raise ``units.UnitError`` if gyr (N, 3) looks like deg/s or acc (N, 3) like g.
 
-    ``path`` ("arrays", "recording", "update", "cli") chooses the fix the message names.
+    ``path`` ("arrays", "recording", "update") chooses the fix the message names.
     Non-finite samples are left out (the screening flags them).
     """
     fixes = _FIXES[path]
-    recording.check_unit_magnitudes(
+    units.check_unit_magnitudes(
         np.zeros((0, 3)) if gyr is None else gyr,
         acc,
         fix=lambda signal, suspected: fixes[signal],
@@ -85,8 +81,8 @@ class UnitProbe:
             self.acc_norms.extend(float(v) for v in norms if np.isfinite(v) and v > 0)
             if self.count == self.N_ACC and self.acc_norms:
                 median = float(np.median(self.acc_norms))
-                if recording._ACC_G_LIKELY[0] < median < recording._ACC_G_LIKELY[1]:
-                    raise recording.UnitError(
+                if units._ACC_G_LIKELY[0] < median < units._ACC_G_LIKELY[1]:
+                    raise units.UnitError(
                         f"acc has a median norm of {median:.3f} over the first {self.N_ACC} "
                         f"updates, about 1 g rather than 9.81 m/s²; {_FIXES['update']['acc']}",
                         signal="acc",
@@ -94,11 +90,11 @@ class UnitProbe:
                     )
         if gyr is not None:
             g = np.abs(np.asarray(gyr).reshape(-1, 3))
-            if np.any(g > recording._GYR_RAD_S_IMPLAUSIBLE):
+            if np.any(g > units._GYR_RAD_S_IMPLAUSIBLE):
                 self.gyr_hits += 1
                 if self.gyr_hits >= self.GYR_HITS:
-                    raise recording.UnitError(
-                        f"gyr exceeded {recording._GYR_RAD_S_IMPLAUSIBLE:g} rad/s on "
+                    raise units.UnitError(
+                        f"gyr exceeded {units._GYR_RAD_S_IMPLAUSIBLE:g} rad/s on "
                         f"{self.gyr_hits} of the first {self.count} updates, more than any "
                         f"MEMS gyroscope measures: probably deg/s; {_FIXES['update']['gyr']}",
                         signal="gyr",

@@ -15,7 +15,8 @@ from margtrack.io.broad import BroadTrial, broad_trials, read_broad
 from margtrack.io.csv import is_margtrack_csv, read_csv, write_csv, write_estimate_csv
 from margtrack.io.hdf5 import _naming_path, read_hdf5, write_estimate_hdf5, write_hdf5
 from margtrack.io.xio import read_xio_body, read_xio_quaternion, read_xio_sensor
-from margtrack.recording import Recording, unit_factor
+from margtrack.recording import Recording
+from margtrack.units import unit_factor
 
 __all__ = [
     "BroadTrial",

@@ -25,8 +25,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from margtrack.frames import check_frame
 from margtrack.io.hdf5 import _existing_file, _naming_path, _writable, meta_to_json
-from margtrack.recording import (
-    Recording,
+from margtrack.recording import Recording
+from margtrack.units import (
     check_unit_magnitudes,
     convert_unit,
     unit_factor,

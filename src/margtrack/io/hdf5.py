@@ -21,7 +21,8 @@ import h5py
 import numpy as np
 from numpy.typing import ArrayLike
 
-from margtrack.recording import Recording, UnitError
+from margtrack.recording import Recording
+from margtrack.units import UnitError
 
 __all__ = ["read_hdf5", "write_estimate_hdf5", "write_hdf5"]
 

@@ -38,11 +38,10 @@ from numpy.typing import NDArray
 from margtrack.frames import STANDARD_GRAVITY_M_S2
 from margtrack.io.csv import _header, _load
 from margtrack.io.hdf5 import _naming_path
-from margtrack.recording import (
-    Recording,
+from margtrack.recording import Recording, resample
+from margtrack.units import (
     check_unit_magnitudes,
     convert_unit,
-    resample,
     unit_factor,
     unit_fix_keyword,
 )

@@ -1,0 +1,181 @@
+"""Units: the one table of the units a signal may be given in, conversion, and unit checks.
+
+Inside margtrack: rad/s, m/s², µT (the field may be any unit) and s. A signal declared in
+another unit is converted with :func:`convert_unit`; :func:`check_unit_magnitudes`
+refuses data whose magnitudes betray a unit mix-up (gyr in deg/s, acc in g) with a
+:class:`UnitError` whose message names the fix on the caller's path.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from margtrack.frames import STANDARD_GRAVITY_M_S2
+
+Array = NDArray[np.float64]
+
+__all__ = [
+    "ACC_UNITS",
+    "GYR_UNITS",
+    "MAG_UNITS",
+    "SI_UNITS",
+    "TIME_UNITS",
+    "UNITS",
+    "UnitError",
+    "check_unit_magnitudes",
+    "convert_unit",
+    "unit_factor",
+    "unit_fix_api",
+    "unit_fix_keyword",
+]
+
+# The one declaration of every unit a signal can be given in: value in the library's unit =
+# value in the declared unit * factor. gyr -> rad/s, acc -> m/s², mag -> µT, time -> s.
+GYR_UNITS: Mapping[str, float] = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
+ACC_UNITS: Mapping[str, float] = {
+    "m/s2": 1.0, "m/s^2": 1.0, "m/s²": 1.0, "g": STANDARD_GRAVITY_M_S2,
+}
+MAG_UNITS: Mapping[str, float] = {
+    "uT": 1.0, "µT": 1.0, "nT": 1e-3, "mT": 1e3, "G": 100.0, "mG": 0.1, "T": 1e6,
+}
+TIME_UNITS: Mapping[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
+UNITS: Mapping[str, Mapping[str, float]] = {
+    "gyr": GYR_UNITS, "acc": ACC_UNITS, "mag": MAG_UNITS, "time": TIME_UNITS,
+}
+SI_UNITS: Mapping[str, str] = {"gyr": "rad/s", "acc": "m/s2", "mag": "uT", "time": "s"}
+
+# Above this many rad/s on any axis a MEMS gyroscope (ranges up to ±2000 deg/s = 34.9 rad/s)
+# cannot have measured it; the numbers are almost certainly deg/s.
+_GYR_RAD_S_IMPLAUSIBLE = 40.0
+# A recording's median acceleration norm is about 9.8 in m/s²; between these bounds it is in g.
+_ACC_G_LIKELY = (0.5, 2.0)
+
+
+def unit_factor(signal: str, unit: str) -> float:
+    """The factor taking ``signal`` values in ``unit`` to rad/s, m/s², µT or s.
+
+    ``signal`` is "gyr", "acc", "mag" or "time". An unknown unit raises ``ValueError``
+    listing the valid ones, e.g. ``gyr_unit must be one of ['deg/s', 'rad/s'], got 'rpm'``.
+    """
+    if signal not in UNITS:
+        raise ValueError(f"signal must be one of {sorted(UNITS)}, got {signal!r}")
+    table = UNITS[signal]
+    if unit not in table:
+        raise ValueError(f"{signal}_unit must be one of {sorted(table)}, got {unit!r}")
+    return table[unit]
+
+
+def convert_unit(values: ArrayLike, signal: str, unit: str) -> Array:
+    """``values`` (any shape) of ``signal`` in ``unit``, converted to rad/s, m/s², µT or s.
+
+    Decimal sub-units (ms, nT, mG...) are divided by the exact power of ten (1e3) rather
+    than multiplied by its inexact reciprocal (1e-3): one rounding instead of two, so
+    ``t_ms / 1e3`` reproduces the seconds a file was written from whenever ``t_s * 1e3``
+    was exact.
+    """
+    factor = unit_factor(signal, unit)
+    arr = np.asarray(values, dtype=np.float64)
+    if factor < 1.0:
+        inverse = float(round(1.0 / factor))
+        if 1.0 / inverse == factor:  # factor is the double nearest 1/inverse: 1e-3, 1e-9...
+            return arr / inverse
+    return arr * factor
+
+
+class UnitError(ValueError):
+    """Magnitudes that betray a unit mix-up: gyr in deg/s or acc in g.
+
+    Attributes
+    ----------
+    signal : "gyr" or "acc".
+    suspected : the unit the data is probably in, "deg/s" or "g".
+    """
+
+    def __init__(self, message: str, *, signal: str, suspected: str) -> None:
+        super().__init__(message)
+        self.signal = signal
+        self.suspected = suspected
+
+
+def unit_fix_api(signal: str, suspected: str) -> str:
+    """The fix sentence for Python callers of the estimators (``check_unit_magnitudes``' default).
+
+    ``unit_fix_api("gyr", "deg/s")`` is ``"pass gyr_unit='deg/s' to run() or convert with
+    Recording.with_units(gyr='deg/s')"``.
+    """
+    return (
+        f"pass {signal}_unit={suspected!r} to run() or convert with "
+        f"Recording.with_units({signal}={suspected!r})"
+    )
+
+
+def unit_fix_keyword(where: str) -> Callable[[str, str], str]:
+    """A fix naming the ``<signal>_unit`` keyword of ``where`` (a function that has it).
+
+    ``unit_fix_keyword("read_csv")("acc", "g")`` is ``"pass acc_unit='g' to read_csv (or
+    check_units=False if it really is m/s2)"``.
+    """
+
+    def fix(signal: str, suspected: str) -> str:
+        return (
+            f"pass {signal}_unit={suspected!r} to {where} "
+            f"(or check_units=False if it really is {SI_UNITS[signal]})"
+        )
+
+    return fix
+
+
+def _gyr_hits_needed(n: int) -> int:
+    """Samples beyond 40 rad/s that betray deg/s in a series of n: 0.1 % and at least 3
+    (fewer in very short series, down to 1 of 1)."""
+    return max(min(3, -(-n // 10)), -(-n // 1000), 1)
+
+
+def check_unit_magnitudes(
+    gyr_rad_s: Array, acc_m_s2: Array, *, fix: Callable[[str, str], str] | None = None
+) -> None:
+    """Raise :class:`UnitError` if gyr looks like deg/s or acc looks like g.
+
+    Parameters
+    ----------
+    gyr_rad_s : (N, 3) angular rate that should be rad/s (may be empty). Refused if a
+        share of samples (0.1 %, at least 3) exceeds 40 rad/s, more than any MEMS gyroscope
+        measures (±2000 deg/s is 34.9); a single spike is a glitch, not a unit.
+    acc_m_s2 : (N, 3) specific force that should be m/s² (may be empty). Refused if its
+        median norm lies between 0.5 and 2 (about 1 g rather than 9.81 m/s²).
+    fix : ``fix(signal, suspected)`` returns the sentence telling the caller how to declare
+        the unit on its own path (an option, a keyword); default :func:`unit_fix_api`.
+
+    The message names the offending sample (gyr) or the median norm (acc), the suspected
+    unit and the fix.
+    """
+    fix = unit_fix_api if fix is None else fix
+    gyr = np.asarray(gyr_rad_s, dtype=np.float64)
+    acc = np.asarray(acc_m_s2, dtype=np.float64)
+    if gyr.size:
+        # samples beyond any MEMS range; a spike or two is a glitch (the estimators flag and
+        # skip it), a share of a recording is a unit
+        over = np.flatnonzero(np.any(np.abs(gyr) > _GYR_RAD_S_IMPLAUSIBLE, axis=-1))
+        if over.size >= _gyr_hits_needed(gyr.shape[0]):
+            peak = float(np.abs(gyr).max())
+            i = int(np.argwhere(np.abs(gyr) == peak)[0][0])
+            raise UnitError(
+                f"gyr reaches {peak:.1f} rad/s at sample {i} and exceeds "
+                f"{_GYR_RAD_S_IMPLAUSIBLE:g} rad/s on {over.size} of {gyr.shape[0]} samples "
+                f"(first at sample {int(over[0])}), more than any MEMS gyroscope measures; "
+                f"the data is probably in deg/s: {fix('gyr', 'deg/s')}",
+                signal="gyr", suspected="deg/s",
+            )
+    if acc.size:
+        # the median of an evenly strided subsample: as telling, and cheap on long series
+        stride = max(1, acc.shape[0] // 20_000)
+        median_norm = float(np.median(np.linalg.norm(acc[::stride], axis=1)))
+        if _ACC_G_LIKELY[0] < median_norm < _ACC_G_LIKELY[1]:
+            raise UnitError(
+                f"acc has a median norm of {median_norm:.3f}, about 1 g rather than 9.81 m/s²; "
+                f"the data is probably in g: {fix('acc', 'g')}",
+                signal="acc", suspected="g",
+            )
