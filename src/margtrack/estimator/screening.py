@@ -38,55 +38,59 @@ __all__ = ["ScreenState", "Screened", "screen"]
 
 @dataclass
 class ScreenState:
-    """Per-sensor memory of the screening (S sensors).
+    """Per-sensor memory of the screening (S sensors): ``packed`` (S, N_SCREEN).
 
-    last_gyr_rad_s : (S, 3) last good rate, used in place of a bad one.
-    acc_prev : (S, 3) last usable acceleration, m/s² (turning without a gyroscope).
-    mag_prev : (S, 3) previous field sample, field unit.
-    mag_hold_s : (S, 3) how long each field axis has held its value while turning, s.
-    mag_peak : (S, 3) largest |value| of each field axis so far, field unit.
-    mag_clip : (S, 3) learned clip level of each field axis (0: none), field unit.
-    mag_ref : (S, 5) field reference: norm, dip (rad), candidate norm, candidate dip,
-        candidate steady time (s); see ``kernels/screen.py``.
+    The layout is ``kernels/screen.py``'s ``S_*`` offsets; the properties name the parts:
+    the last good rate (used in place of a bad one), the last usable acceleration, the
+    previous field sample, how long each field axis has held its value while turning,
+    the largest |value| and the learned clip level of each axis, and the field reference.
     """
 
-    last_gyr_rad_s: Array
-    acc_prev: Array
-    mag_prev: Array
-    mag_hold_s: Array
-    mag_peak: Array
-    mag_clip: Array
-    mag_ref: Array
+    packed: Array
 
     @classmethod
     def new(cls, n_sensors: int) -> ScreenState:
         """Nothing seen yet."""
-        ref = np.zeros((n_sensors, kernel.N_REF))
-        ref[:, kernel.R_DIP] = np.nan
-        ref[:, kernel.R_CAND_DIP] = np.nan
-        return cls(
-            last_gyr_rad_s=np.zeros((n_sensors, 3)),
-            acc_prev=np.zeros((n_sensors, 3)),
-            mag_prev=np.full((n_sensors, 3), np.nan),
-            mag_hold_s=np.zeros((n_sensors, 3)),
-            mag_peak=np.zeros((n_sensors, 3)),
-            mag_clip=np.zeros((n_sensors, 3)),
-            mag_ref=ref,
-        )
+        packed = np.empty((n_sensors, kernel.N_SCREEN))
+        kernel.fresh(packed)
+        return cls(packed=packed)
 
     def copy(self) -> ScreenState:
         """An independent copy."""
-        return ScreenState(**{k: v.copy() for k, v in self.__dict__.items()})
+        return ScreenState(packed=self.packed.copy())
+
+    def _part(self, offset: int, width: int) -> Array:
+        return self.packed[:, offset : offset + width]
+
+    @property
+    def last_gyr_rad_s(self) -> Array:
+        """(S, 3) view: the last good rate, rad/s."""
+        return self._part(kernel.S_LAST_GYR, 3)
+
+    @property
+    def mag_hold_s(self) -> Array:
+        """(S, 3) view: how long each field axis has held its value while turning, s."""
+        return self._part(kernel.S_MAG_HOLD, 3)
+
+    @property
+    def mag_clip(self) -> Array:
+        """(S, 3) view: learned clip level of each field axis (0: none), field unit."""
+        return self._part(kernel.S_MAG_CLIP, 3)
+
+    @property
+    def mag_ref(self) -> Array:
+        """(S, 5) view: reference norm, dip (rad), candidate norm, dip and steady time (s)."""
+        return self._part(kernel.S_REF, kernel.N_REF)
 
     @property
     def mag_norm_ref(self) -> Array:
         """(S,) the field norm currently taken as undisturbed (0: none yet)."""
-        return self.mag_ref[:, kernel.R_NORM].copy()
+        return self.packed[:, kernel.S_REF + kernel.R_NORM].copy()
 
     @property
     def mag_dip_ref_rad(self) -> Array:
         """(S,) the dip currently taken as undisturbed, rad (nan: none yet)."""
-        return self.mag_ref[:, kernel.R_DIP].copy()
+        return self.packed[:, kernel.S_REF + kernel.R_DIP].copy()
 
 
 @dataclass
@@ -150,13 +154,7 @@ def screen(
         acc if mag is None else mag,
         mag is not None,
         gyr is not None,
-        state.last_gyr_rad_s,
-        state.acc_prev,
-        state.mag_prev,
-        state.mag_hold_s,
-        state.mag_peak,
-        state.mag_clip,
-        state.mag_ref,
+        state.packed,
         gyr_out,
         acc_out,
         mag_out,
