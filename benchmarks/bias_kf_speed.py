@@ -135,7 +135,7 @@ def main() -> None:
     args_linalg = (q0, cov0, gyr, acc, mag, dt, frames.up("ENU"),
                    frames.mag_reference("ENU", 0.0), gyr_var, bias_var,
                    p.acc_noise_m_s2_sqrt_hz**2, (p.acc_motion_fraction * p.gravity_m_s2) ** 2,
-                   p.gravity_m_s2**2, p.mag_noise_ut_sqrt_hz**2, out)
+                   p.gravity_m_s2**2, p.mag_relative_var() * float(np.sum(mag[0] ** 2)), out)
     start = time.perf_counter()
     bias_kf_linalg(*args_linalg)
     compile_s = time.perf_counter() - start

@@ -228,7 +228,8 @@ def test_kernel_equals_a_plain_numpy_implementation_of_eqs_25_to_51():
         z = np.array(res[1:5]) * np.sign(np.dot(res[1:5], q))  # eq. 38, sign nearest q⁻
         var_g = (p.acc_noise_m_s2_sqrt_hz**2 / t + (p.acc_motion_fraction * 9.80665) ** 2)
         k.fill_triad_cov(*res[5:11], var_g / 9.80665**2,
-                         p.mag_noise_ut_sqrt_hz**2 / t / np.sum(rec.mag[i] ** 2), xi)  # eq. 45
+                         p.mag_relative_var() / t * np.sum(rec.mag[0] ** 2)
+                         / np.sum(rec.mag[i] ** 2), xi)  # eq. 45, σ_M = σ_rel |m₀|
         k.fill_quat_noise(*q, xi, np.empty((4, 3)), v, 1.0)  # eq. 46
         gain = cov @ h.T @ np.linalg.inv(h @ cov @ h.T + v)  # eq. 49
         x = np.r_[q, b] + gain @ (z - q)  # eq. 50

@@ -134,11 +134,13 @@ def param(
     le: float | None = None,
     choices: tuple[Any, ...] | None = None,
     calibrated_by: str | None = None,
+    none_ok: bool | None = None,
 ) -> Any:
     """A dataclass field declaring one parameter: default, unit, bounds and help.
 
     ``None`` as default means the parameter may be None (for example "measure the dip
-    from the first sample"). Bounds apply to numbers and to each element of tuples.
+    from the first sample"); ``none_ok=True`` allows None with another default (None then
+    means "off", say so in help). Bounds apply to numbers and to each element of tuples.
     ``calibrated_by`` names the calibration-file quantity that sets it (see ParamSpec).
     """
     meta = {
@@ -150,7 +152,7 @@ def param(
             "lt": lt,
             "le": le,
             "choices": choices,
-            "none_ok": default is None,
+            "none_ok": default is None if none_ok is None else none_ok,
             "calibrated_by": calibrated_by,
         }
     }

@@ -22,6 +22,10 @@ Convention notes (derived, the extracted text of 003 differs):
 - eq. 28 prints ``Φ_B = -½ Φ_Q Q̃``; integrating eq. 22 over one period gives
   ``Φ_B = -½ T Φ_Q Q̃`` (the ``T`` makes ``Φ_B b`` dimensionless).
 
+A sample without accelerometer or field (zero vector: the input screening's "no
+measurement") corrects what the other still observes, by a reduced update
+(:func:`_reduced_update`): the tilt alone, or the heading alone.
+
 :func:`bias_kf` is the filter as printed; :func:`bias_kf_extended` adds margtrack's
 extensions (each off at its neutral value, where it is the same filter to the last bit):
 the decoupled tilt/heading measurement, rate-proportional gyro noise, measurement noise
@@ -180,6 +184,20 @@ def _up_in_body(w, x, y, z, ux, uy, uz):
 
 
 @njit(cache=True)
+def _tilt_rotation(ax, ay, az, zx, zy, zz, fx, fy, fz):
+    """Shortest rotation ``r`` taking the unit ``â`` to the unit ``ẑ`` (body frame), [w, x, y, z].
+
+    Its axis ``â × ẑ`` is normal to ``ẑ``. For ``â = -ẑ`` any axis normal to ``ẑ`` turns it
+    by π: the unit ``f`` given (normal to ``ẑ``) is used.
+    """
+    d = ax * zx + ay * zy + az * zz
+    if 1.0 + d > 1e-12:
+        rx, ry, rz = cross(ax, ay, az, zx, zy, zz)
+        return normalized(1.0 + d, rx, ry, rz)
+    return 0.0, fx, fy, fz
+
+
+@njit(cache=True)
 def _decoupled(ax, ay, az, nx, ny, nz, zx, zy, zz, up, north):
     """Tilt from the accelerometer, heading from the field levelled by the predicted tilt.
 
@@ -190,6 +208,23 @@ def _decoupled(ax, ay, az, nx, ny, nz, zx, zy, zz, up, north):
     ``â × ẑ`` is normal to ``ẑ``, i.e. horizontal in the earth frame: the tilt correction
     leaves the heading alone. PARALLEL if ``ẑ`` and ``n̂`` are (nearly) parallel.
     """
+    flag, hw, hx, hy, hz, c2 = _levelled_heading(nx, ny, nz, zx, zy, zz, up, north)
+    if flag != OK:
+        return flag, 1.0, 0.0, 0.0, 0.0, c2
+    cx, cy, cz = cross(zx, zy, zz, nx, ny, nz)
+    inv = 1.0 / math.sqrt(c2)
+    rw, rx, ry, rz = _tilt_rotation(ax, ay, az, zx, zy, zz, cx * inv, cy * inv, cz * inv)
+    w, x, y, z = mul(hw, hx, hy, hz, rw, rx, ry, rz)
+    return OK, w, x, y, z, c2
+
+
+@njit(cache=True)
+def _levelled_heading(nx, ny, nz, zx, zy, zz, up, north):
+    """``TRIAD(ẑ, n̂)``: the predicted tilt with the heading of the unit field ``n̂``.
+
+    Returns (flag, w, x, y, z, |ẑ × n̂|²); PARALLEL if ``ẑ`` and ``n̂`` are (nearly)
+    parallel (the field then has no horizontal direction).
+    """
     cx, cy, cz = cross(zx, zy, zz, nx, ny, nz)
     c2 = cx * cx + cy * cy + cz * cz
     if c2 < PARALLEL_SINE * PARALLEL_SINE:
@@ -197,16 +232,7 @@ def _decoupled(ax, ay, az, nx, ny, nz, zx, zy, zz, up, north):
     s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z = reference_triad(
         up[0], up[1], up[2], north[0], north[1], north[2]
     )
-    hw, hx, hy, hz = triad_unit(zx, zy, zz, nx, ny, nz,
-                                s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z)
-    d = ax * zx + ay * zy + az * zz
-    if 1.0 + d > 1e-12:
-        rx, ry, rz = cross(ax, ay, az, zx, zy, zz)
-        rw, rx, ry, rz = normalized(1.0 + d, rx, ry, rz)
-    else:  # â = -ẑ: any axis normal to ẑ turns it by π; take the horizontal ẑ × n̂
-        inv = 1.0 / math.sqrt(c2)
-        rw, rx, ry, rz = 0.0, cx * inv, cy * inv, cz * inv
-    w, x, y, z = mul(hw, hx, hy, hz, rw, rx, ry, rz)
+    w, x, y, z = triad_unit(zx, zy, zz, nx, ny, nz, s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z)
     return OK, w, x, y, z, c2
 
 
@@ -328,6 +354,117 @@ def _kalman_update(p, v, innov, chol, y, gain, zmat, kv, dx):
 
 
 @njit(cache=True)
+def _reduced_update(p, hq, m, v, innov, chol, y, gain, hp, zmat, zh, kv, dx):
+    """Kalman update with ``H = [Hq 0]``, ``Hq`` the first ``m`` rows of ``hq`` (3, 4).
+
+    The partial measurements (tilt only, heading only) observe ``m`` < 3 directions of
+    the quaternion: ``hq`` holds them as unit rows ``(q ⊗ (0, a_k))ᵀ`` for body axes
+    ``a_k``, ``v`` (m, m) their covariance, ``innov`` (m,) the innovation along them. The
+    directions not measured get no update at all (rather than a large variance, which
+    would still shrink their covariance a little at every sample). Fills ``dx = K ν`` and
+    ``P`` in Joseph form as :func:`_kalman_update`; False (nothing changed) if the
+    innovation covariance is not positive definite. The rest are buffers.
+    """
+    n = p.shape[0]
+    for r in range(m):  # H P (m, n)
+        for c in range(n):
+            acc = 0.0
+            for k in range(4):
+                acc += hq[r, k] * p[k, c]
+            hp[r, c] = acc
+    for r in range(m):  # S = H P Hᵀ + V
+        for c in range(r + 1):
+            acc = v[r, c]
+            for k in range(4):
+                acc += hp[r, k] * hq[c, k]
+            zmat[r, c] = acc
+    if not cholesky(zmat, m, chol):
+        return False
+    for r in range(n):
+        dx[r] = 0.0
+    add_kalman_gain(chol, m, hp, innov, dx, y, gain)  # K = P Hᵀ S⁻¹ (eq. 49), dx = K ν (eq. 50)
+    for r in range(n):  # Z = (I - KH) P, K V
+        for c in range(n):
+            acc = p[r, c]
+            for k in range(m):
+                acc -= gain[r, k] * hp[k, c]
+            zmat[r, c] = acc
+        for c in range(m):
+            acc = 0.0
+            for k in range(m):
+                acc += gain[r, k] * v[k, c]
+            kv[r, c] = acc
+    for r in range(n):  # Z Hᵀ
+        for c in range(m):
+            acc = 0.0
+            for k in range(4):
+                acc += zmat[r, k] * hq[c, k]
+            zh[r, c] = acc
+    for r in range(n):  # P = Z - Z Hᵀ Kᵀ + K V Kᵀ (eq. 51, Joseph form)
+        for c in range(r, n):
+            acc = zmat[r, c]
+            for k in range(m):
+                acc += (kv[r, k] - zh[r, k]) * gain[c, k]
+            p[r, c] = acc
+    for r in range(n):
+        for c in range(r):
+            p[r, c] = p[c, r]
+    return True
+
+
+@njit(cache=True)
+def _normal_axes(zx, zy, zz):
+    """Two unit axes normal to the unit ``ẑ`` and to each other (6 numbers)."""
+    # cross with the coordinate axis least aligned with ẑ
+    if abs(zx) <= abs(zy) and abs(zx) <= abs(zz):
+        ex, ey, ez = 1.0, 0.0, 0.0
+    elif abs(zy) <= abs(zz):
+        ex, ey, ez = 0.0, 1.0, 0.0
+    else:
+        ex, ey, ez = 0.0, 0.0, 1.0
+    ax, ay, az = cross(zx, zy, zz, ex, ey, ez)
+    inv = 1.0 / math.sqrt(ax * ax + ay * ay + az * az)
+    ax, ay, az = ax * inv, ay * inv, az * inv
+    bx, by, bz = cross(zx, zy, zz, ax, ay, az)
+    return ax, ay, az, bx, by, bz
+
+
+@njit(cache=True)
+def _fill_direction(qt, ax, ay, az, hq, row):
+    """``hq[row] = (Q̃ a)ᵀ``: the quaternion direction ``q ⊗ (0, a)`` of body axis ``a``."""
+    for k in range(4):
+        hq[row, k] = qt[k, 0] * ax + qt[k, 1] * ay + qt[k, 2] * az
+
+
+@njit(cache=True)
+def _acc_variance(acc_var, h, acc_motion_var, gravity2, acc_norm_corr_s, na, g_abs):
+    """``σ_G²`` of the unit gravity direction (eqs. 41-43, ``acc_norm_correlation_s``)."""
+    var_g = (acc_var / h + acc_motion_var) / gravity2  # eqs. 41-43
+    if acc_norm_corr_s > 0.0:  # time-correlated body acceleration
+        var_g += (na / g_abs - 1.0) ** 2 * (2.0 * acc_norm_corr_s / h)
+    return var_g
+
+
+@njit(cache=True)
+def _mag_variance(mag_var, h, nm, sin_dip, ref_norm, ref_sin_dip, norm_corr_s, dip_corr_s):
+    """``σ_N²`` of the unit field direction (eq. 44 and the disturbance terms).
+
+    ``mag_var`` is the field's squared white-noise density relative to the reference
+    field's norm (1/Hz): the sensor's noise ``σ_M`` is ``√mag_var · |m₀|`` in the data's
+    unit, so eq. 44's ``σ_M²/|m|²`` is ``mag_var (|m₀|/|m|)²`` and nothing depends on the
+    magnetometer's unit (a weakened field is trusted less, a stronger one more, as with an
+    absolute noise density).
+    """
+    var_n = mag_var / h * (ref_norm / nm) ** 2  # eq. 44
+    if norm_corr_s > 0.0 or dip_corr_s > 0.0:  # magnetic disturbance: field norm and dip
+        var_n += (
+            (nm / ref_norm - 1.0) ** 2 * (2.0 * norm_corr_s)
+            + (sin_dip - ref_sin_dip) ** 2 * (2.0 * dip_corr_s)
+        ) / h
+    return var_n
+
+
+@njit(cache=True)
 def bias_kf(
     quat_state, bias_state, cov_state, gyr, acc, mag, dt, up, north,
     gyr_var, bias_var, acc_var, acc_motion_var_m2_s4, gravity2_m2_s4, mag_var,
@@ -337,21 +474,25 @@ def bias_kf(
 
     quat_state (S, 4), bias_state (S, 3) rad/s, cov_state (S, 7, 7): state before sample 0,
     replaced by the state after the last sample. gyr (S, N, 3) rad/s, acc (S, N, 3) m/s²,
-    mag (S, N, 3) any unit; dt (N,) s (dt = 0: first sample, output the state as it is).
-    up, north (3,): unit earth-frame up and horizontal north. gyr_var (3,) (rad/s)²/Hz and
-    bias_var (3,) (rad/s)²/s: squared noise densities per body axis; acc_var (m/s²)²/Hz
-    and mag_var unit²/Hz: squared white-noise densities; acc_motion_var_m2_s4: σ_C² (eq. 43);
+    mag (S, N, 3) any unit; dt (N,) s (dt = 0: output the state as it is). up, north (3,):
+    unit earth-frame up and horizontal north. gyr_var (3,) (rad/s)²/Hz and bias_var (3,)
+    (rad/s)²/s: squared noise densities per body axis; acc_var (m/s²)²/Hz: squared
+    white-noise density; mag_var 1/Hz: the field's squared white-noise density relative
+    to the norm of the first field sample ``|m₀|``, ``(σ_M/|m₀|)²`` (eq. 44 becomes
+    ``mag_var (|m₀|/|m|)²``: unit-free); acc_motion_var_m2_s4: σ_C² (eq. 43);
     gravity2_m2_s4: g², the squared magnitude of the expected gravity vector (eq. 41).
     Outputs (S, N, 4), (S, N, 3), (S, N, 7) diagonal of P, flags (S, N) int8 (TRIAD flags,
-    or NOT_PD); a flagged sample is predicted but not corrected.
+    or NOT_PD): see :func:`bias_kf_extended` for what a flagged sample gets.
     :func:`bias_kf_extended` with every extension at its neutral value.
     """
-    field_ref = np.full((acc.shape[0], 2), np.nan)
+    n_sensors, n = acc.shape[0], acc.shape[1]
+    field_ref = np.full((n_sensors, 2), np.nan)
+    disturbed = np.empty((n_sensors, n), dtype=np.bool_)
     bias_kf_extended(
         quat_state, bias_state, cov_state, field_ref, gyr, acc, mag, dt, up, north,
         gyr_var, bias_var, acc_var, acc_motion_var_m2_s4, gravity2_m2_s4, mag_var,
-        False, 0.0, 0.0, 0.0, 0.0, math.inf, 1.0,
-        quat_out, bias_out, cov_diag_out, flags,
+        False, 0.0, 0.0, 0.0, 0.0, math.inf, 1.0, math.inf, math.inf,
+        quat_out, bias_out, cov_diag_out, flags, disturbed,
     )
 
 
@@ -360,14 +501,15 @@ def bias_kf_extended(
     quat_state, bias_state, cov_state, field_ref, gyr, acc, mag, dt, up, north,
     gyr_var, bias_var, acc_var, acc_motion_var_m2_s4, gravity2_m2_s4, mag_var,
     decoupled, gyr_scale_var_s, acc_norm_corr_s, mag_norm_corr_s, mag_dip_corr_s,
-    tilt_gate, tilt_gate_exponent,
-    quat_out, bias_out, cov_diag_out, flags,
+    tilt_gate, tilt_gate_exponent, mag_norm_tol, mag_dip_tol_rad,
+    quat_out, bias_out, cov_diag_out, flags, mag_disturbed,
 ):  # fmt: skip
     """:func:`bias_kf` with margtrack's extensions (arguments as there, plus these).
 
     field_ref (S, 2): the field's reference norm (mag unit) and ``sin`` of its dip (the
     field's component along predicted down over its norm), state; NaN until the first
-    sample with a non-zero field sets them from that sample and the orientation then.
+    sample with a non-zero field sets them from that sample and the orientation then
+    (the norm also scales ``mag_var``, see :func:`_mag_variance`).
     decoupled: the tilt/heading measurement (:func:`_decoupled`, :func:`fill_decoupled_cov`)
     instead of TRIAD's. gyr_scale_var_s κ², s: rate noise density per axis
     ``n_k² + κ² ω_k²`` (eq. 31). acc_norm_corr_s, mag_norm_corr_s, mag_dip_corr_s τ, s:
@@ -375,7 +517,17 @@ def bias_kf_extended(
     (sin δ - sin δ₀)² 2τ_δ)/T`` (eq. 44). tilt_gate γ (inf: off), tilt_gate_exponent p:
     with ``d²`` the normalised tilt innovation (:func:`_tilt_innovation_d2`), ``σ_G²`` is
     multiplied by ``(d²/γ)^p`` where ``d² > γ``. All neutral (False, 0, 0, 0, 0, inf):
-    :func:`bias_kf` exactly.
+    :func:`bias_kf` exactly. mag_norm_tol (relative) and mag_dip_tol_rad: a field whose
+    norm or dip is farther than that from the reference is flagged disturbed
+    (``mag_disturbed`` (S, N) bool out); it is still used, with the variance above (by the
+    tolerances the disturbance terms have made it far larger than the heading's).
+
+    Sentinels (the input screening's): ``dt = 0`` integrates and corrects nothing; an
+    all-zero accelerometer or field vector is no measurement. A sample with one of the two
+    gets the partial correction the other still allows, flagged: ZERO_MAG (or a field
+    parallel to the accelerometer or to the predicted up, PARALLEL) corrects the tilt only,
+    ZERO_ACC the heading only (the field levelled by the predicted up), each by
+    :func:`_reduced_update`; NOT_PD: not corrected. Never NaN for finite input.
     """
     n_sensors, n = acc.shape[0], acc.shape[1]
     phi = np.empty((4, 4))
@@ -393,9 +545,11 @@ def bias_kf_extended(
     innov = np.empty(4)
     tmp43 = np.empty((4, 3))
     pth = np.empty((3, 3))
+    hq = np.empty((3, 4))
+    hp = np.empty((3, 7))
+    zh = np.empty((7, 3))
+    vr = np.zeros((3, 3))
     g_abs = math.sqrt(gravity2_m2_s4)
-    use_field_ref = mag_norm_corr_s > 0.0 or mag_dip_corr_s > 0.0
-    use_up = decoupled or mag_dip_corr_s > 0.0 or tilt_gate < math.inf
     for s in range(n_sensors):
         qw, qx, qy, qz = quat_state[s, 0], quat_state[s, 1], quat_state[s, 2], quat_state[s, 3]
         bx, by, bz = bias_state[s, 0], bias_state[s, 1], bias_state[s, 2]
@@ -405,11 +559,8 @@ def bias_kf_extended(
             flag = OK
             mgx, mgy, mgz = mag[s, i, 0], mag[s, i, 1], mag[s, i, 2]
             nm2 = mgx * mgx + mgy * mgy + mgz * mgz
-            if use_field_ref and math.isnan(field_ref[s, 0]) and nm2 > 0.0:
-                nm = math.sqrt(nm2)
-                ux, uy, uz = _up_in_body(qw, qx, qy, qz, up[0], up[1], up[2])
-                field_ref[s, 0] = nm
-                field_ref[s, 1] = -(ux * mgx + uy * mgy + uz * mgz) / nm
+            acx, acy, acz = acc[s, i, 0], acc[s, i, 1], acc[s, i, 2]
+            na2 = acx * acx + acy * acy + acz * acz
             if h > 0.0:
                 # -- prediction (eqs. 25-31, 47-48) --------------------------------------
                 wx, wy, wz = gyr[s, i, 0] - bx, gyr[s, i, 1] - by, gyr[s, i, 2] - bz  # eq. 17
@@ -443,52 +594,106 @@ def bias_kf_extended(
                         p[r, c] += noise[r, c]
                 for k in range(3):
                     p[4 + k, 4 + k] += bias_var[k] * h  # Ξ_B: bias random walk
-                # -- measurement: TRIAD quaternion (eqs. 10-13, 38) ----------------------
-                res = _triad(acc[s, i, 0], acc[s, i, 1], acc[s, i, 2], mgx, mgy, mgz, up, north)
-                flag = res[0]
-                mw, mx, my, mz = res[1], res[2], res[3], res[4]
-                ux, uy, uz = 0.0, 0.0, 1.0
-                if flag == OK and use_up:  # predicted up, body frame
-                    ux, uy, uz = _up_in_body(qw, qx, qy, qz, up[0], up[1], up[2])
-                c2 = 1.0
-                if flag == OK and decoupled:
-                    dec = _decoupled(res[5], res[6], res[7], res[8], res[9], res[10],
-                                     ux, uy, uz, up, north)
-                    flag = dec[0]
-                    mw, mx, my, mz, c2 = dec[1], dec[2], dec[3], dec[4], dec[5]
-                if flag == OK:
-                    if mw * qw + mx * qx + my * qy + mz * qz < 0.0:  # sign nearest q⁻
-                        mw, mx, my, mz = -mw, -mx, -my, -mz
-                    # unit-vector noise = normal noise / |E v| (eqs. 41-44): |E ᴮG| is g,
-                    # known; |E ᴮM| is unknown and the field's own noise is small, so |m|
-                    var_g = (acc_var / h + acc_motion_var_m2_s4) / gravity2_m2_s4  # eqs. 41-43
-                    var_n = (mag_var / h) / nm2  # eq. 44
-                    if acc_norm_corr_s > 0.0:  # time-correlated body acceleration
-                        na = math.sqrt(acc[s, i, 0] ** 2 + acc[s, i, 1] ** 2 + acc[s, i, 2] ** 2)
-                        var_g += (na / g_abs - 1.0) ** 2 * (2.0 * acc_norm_corr_s / h)
-                    if use_field_ref:  # magnetic disturbance: field norm and dip
-                        nm = math.sqrt(nm2)
-                        sin_dip = -(ux * mgx + uy * mgy + uz * mgz) / nm
-                        var_n += (
-                            (nm / field_ref[s, 0] - 1.0) ** 2 * (2.0 * mag_norm_corr_s)
-                            + (sin_dip - field_ref[s, 1]) ** 2 * (2.0 * mag_dip_corr_s)
-                        ) / h
-                    if tilt_gate < math.inf:  # robust tilt gate
+            # predicted up (body frame); the field's norm and dip against its reference
+            ux, uy, uz = _up_in_body(qw, qx, qy, qz, up[0], up[1], up[2])
+            nm, sin_dip = 0.0, 0.0
+            disturbed = False
+            if nm2 > 0.0:
+                nm = math.sqrt(nm2)
+                sin_dip = -(ux * mgx + uy * mgy + uz * mgz) / nm
+                if math.isnan(field_ref[s, 0]):
+                    field_ref[s, 0] = nm
+                    field_ref[s, 1] = sin_dip
+                dip_off = abs(
+                    math.asin(min(1.0, max(-1.0, sin_dip)))
+                    - math.asin(min(1.0, max(-1.0, field_ref[s, 1])))
+                )
+                norm_off = abs(nm / field_ref[s, 0] - 1.0)
+                disturbed = norm_off > mag_norm_tol or dip_off > mag_dip_tol_rad
+            mag_disturbed[s, i] = disturbed
+            if h > 0.0 and (na2 > 0.0 or nm2 > 0.0):
+                if na2 > 0.0 and nm2 > 0.0:
+                    # -- measurement: TRIAD quaternion (eqs. 10-13, 38) ------------------
+                    res = _triad(acx, acy, acz, mgx, mgy, mgz, up, north)
+                    flag = res[0]
+                    mw, mx, my, mz = res[1], res[2], res[3], res[4]
+                    c2 = 1.0
+                    if flag == OK and decoupled:
+                        dec = _decoupled(res[5], res[6], res[7], res[8], res[9], res[10],
+                                         ux, uy, uz, up, north)
+                        flag = dec[0]
+                        mw, mx, my, mz, c2 = dec[1], dec[2], dec[3], dec[4], dec[5]
+                    if flag == OK:
+                        if mw * qw + mx * qx + my * qy + mz * qz < 0.0:  # sign nearest q⁻
+                            mw, mx, my, mz = -mw, -mx, -my, -mz
+                        # unit-vector noise = normal noise / |E v| (eqs. 41-44)
+                        var_g = _acc_variance(acc_var, h, acc_motion_var_m2_s4, gravity2_m2_s4,
+                                              acc_norm_corr_s, math.sqrt(na2), g_abs)
+                        var_n = _mag_variance(mag_var, h, nm, sin_dip, field_ref[s, 0],
+                                              field_ref[s, 1], mag_norm_corr_s, mag_dip_corr_s)
+                        if tilt_gate < math.inf:  # robust tilt gate
+                            d2 = _tilt_innovation_d2(p, qw, qx, qy, qz, mw, mx, my, mz,
+                                                     ux, uy, uz, var_g, qt, tmp43, pth)
+                            if d2 > tilt_gate:
+                                var_g *= (d2 / tilt_gate) ** tilt_gate_exponent
+                        if decoupled:
+                            fill_decoupled_cov(ux, uy, uz, var_g, var_n / c2, xi)
+                        else:
+                            fill_triad_cov(res[5], res[6], res[7], res[8], res[9], res[10],
+                                           var_g, var_n, xi)  # eq. 45
+                        fill_quat_noise(qw, qx, qy, qz, xi, qt, noise, 1.0)  # eq. 46
+                        for k in range(3):
+                            for c in range(3):
+                                xi[k, c] = 0.0
+                        innov[0], innov[1] = mw - qw, mx - qx
+                        innov[2], innov[3] = my - qy, mz - qz
+                        if _kalman_update(p, noise, innov, chol, y, gain, zmat, kv, dx):
+                            qw, qx, qy, qz = normalized(qw + dx[0], qx + dx[1], qy + dx[2],
+                                                        qz + dx[3])
+                            bx, by, bz = bx + dx[4], by + dx[5], bz + dx[6]
+                        else:
+                            flag = NOT_PD
+                else:
+                    flag = ZERO_ACC if na2 == 0.0 else ZERO_MAG
+                m_rows = 0
+                if flag == ZERO_MAG or flag == PARALLEL:
+                    # -- tilt only: m = q⁻ ⊗ r, r taking the measured up to the predicted --
+                    na = math.sqrt(na2)
+                    ex, ey, ez, fx, fy, fz = _normal_axes(ux, uy, uz)
+                    rw, rx, ry, rz = _tilt_rotation(acx / na, acy / na, acz / na,
+                                                    ux, uy, uz, ex, ey, ez)
+                    var_g = _acc_variance(acc_var, h, acc_motion_var_m2_s4, gravity2_m2_s4,
+                                          acc_norm_corr_s, na, g_abs)
+                    if tilt_gate < math.inf:
+                        mw, mx, my, mz = mul(qw, qx, qy, qz, rw, rx, ry, rz)
                         d2 = _tilt_innovation_d2(p, qw, qx, qy, qz, mw, mx, my, mz,
                                                  ux, uy, uz, var_g, qt, tmp43, pth)
                         if d2 > tilt_gate:
                             var_g *= (d2 / tilt_gate) ** tilt_gate_exponent
-                    if decoupled:
-                        fill_decoupled_cov(ux, uy, uz, var_g, var_n / c2, xi)
-                    else:
-                        fill_triad_cov(res[5], res[6], res[7], res[8], res[9], res[10],
-                                       var_g, var_n, xi)  # eq. 45
-                    fill_quat_noise(qw, qx, qy, qz, xi, qt, noise, 1.0)  # eq. 46
-                    for k in range(3):
-                        for c in range(3):
-                            xi[k, c] = 0.0
-                    innov[0], innov[1], innov[2], innov[3] = mw - qw, mx - qx, my - qy, mz - qz
-                    if _kalman_update(p, noise, innov, chol, y, gain, zmat, kv, dx):
+                    fill_qtilde(qw, qx, qy, qz, qt)
+                    _fill_direction(qt, ex, ey, ez, hq, 0)
+                    _fill_direction(qt, fx, fy, fz, hq, 1)
+                    innov[0] = ex * rx + ey * ry + ez * rz  # δq = ½ Q̃ θ: r's vector part
+                    innov[1] = fx * rx + fy * ry + fz * rz
+                    vr[0, 0], vr[1, 1], vr[0, 1], vr[1, 0] = 0.25 * var_g, 0.25 * var_g, 0.0, 0.0
+                    m_rows = 2
+                elif flag == ZERO_ACC and nm2 > 0.0:
+                    # -- heading only: TRIAD of the predicted up and the field --------------
+                    lev = _levelled_heading(mgx / nm, mgy / nm, mgz / nm, ux, uy, uz, up, north)
+                    if lev[0] == OK:
+                        var_n = _mag_variance(mag_var, h, nm, sin_dip, field_ref[s, 0],
+                                              field_ref[s, 1], mag_norm_corr_s, mag_dip_corr_s)
+                        _, ex, ey, ez = mul(qw, -qx, -qy, -qz, lev[1], lev[2], lev[3], lev[4])
+                        if lev[1] * qw + lev[2] * qx + lev[3] * qy + lev[4] * qz < 0.0:
+                            ex, ey, ez = -ex, -ey, -ez  # sign nearest q⁻
+                        fill_qtilde(qw, qx, qy, qz, qt)
+                        _fill_direction(qt, ux, uy, uz, hq, 0)
+                        innov[0] = ux * ex + uy * ey + uz * ez
+                        vr[0, 0] = 0.25 * var_n / lev[5]
+                        m_rows = 1
+                if m_rows > 0:
+                    if _reduced_update(p, hq, m_rows, vr, innov, chol, y, gain, hp, zmat, zh,
+                                       kv, dx):
                         qw, qx, qy, qz = normalized(qw + dx[0], qx + dx[1], qy + dx[2],
                                                     qz + dx[3])
                         bx, by, bz = bx + dx[4], by + dx[5], bz + dx[6]

@@ -64,6 +64,8 @@ NEW_REF_S = 20.0
 #: the dip is only compared when |acc| is within this of g (linear acceleration tilts it)
 DIP_ACC_TOL_M_S2 = 1.5
 GRAVITY = 9.81
+#: a field this many times off its reference norm is a glitch in any environment
+ABSURD = 10.0
 
 
 @njit(cache=True)
@@ -165,8 +167,14 @@ def screen_one(coef, sc, step, time_flags, g0, g1, g2, a0, a1, a2, m0, m1, m2, h
             if not _field_usable(coef, sc, step, w0, w1, w2, m0, m1, m2):
                 f |= MAG_IGNORED
                 mag_ok = False
-        if mag_ok and coef[C_CHECK_DISTURBANCE] > 0.5 and not skip:
-            if _disturbed(coef, sc, step, acc_ok, a0, a1, a2, m0, m1, m2):
+        if mag_ok and not skip:
+            # the reference is tracked for every method; the norm/dip gate applies to
+            # methods without their own rejection, the absurd-norm check to all
+            far = _disturbed(coef, sc, step, acc_ok, a0, a1, a2, m0, m1, m2)
+            if far == 2:
+                f |= MAG_IGNORED
+                mag_ok = False
+            elif far == 1 and coef[C_CHECK_DISTURBANCE] > 0.5:
                 f |= MAG_DISTURBED
                 mag_ok = False
         if not mag_ok or skip:
@@ -263,13 +271,18 @@ def _acc_turn_rate(sc, acc_ok, a0, a1, a2, step):
 
 @njit(cache=True, inline="always")
 def _disturbed(coef, sc, step, acc_ok, a0, a1, a2, m0, m1, m2):
-    """Whether the field's norm or dip is far from the tracked reference; tracks it.
+    """How far the field is from the tracked reference: 0 close, 1 disturbed, 2 absurd.
 
-    The reference starts at the given values or the first sample, follows slowly while
-    the field agrees with it, and is replaced by a new field that stays steady for
-    NEW_REF_S (a new environment).
+    Disturbed: norm or dip beyond ``mag_norm_tol`` / ``mag_dip_tol_deg``; absurd: a norm
+    more than ABSURD times off, which no environment explains (a glitch), and which does
+    not move the reference. The reference starts at the given values or the first sample,
+    follows slowly while the field agrees with it, and is replaced by a new field that
+    stays steady for NEW_REF_S (a new environment).
     """
     norm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+    ref_norm = sc[S_REF + R_NORM]
+    if ref_norm > 0.0 and (norm > ABSURD * ref_norm or norm * ABSURD < ref_norm):
+        return 2
     dip = math.nan
     a_norm = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
     if acc_ok and abs(a_norm - GRAVITY) < DIP_ACC_TOL_M_S2:
@@ -295,7 +308,7 @@ def _disturbed(coef, sc, step, acc_ok, a0, a1, a2, m0, m1, m2):
         sc[S_REF + R_CAND_NORM] = norm
         sc[S_REF + R_CAND_DIP] = dip
         sc[S_REF + R_CAND_S] = 0.0
-        return False
+        return 0
     cand_n = sc[S_REF + R_CAND_NORM]
     cand_known = not math.isnan(dip) and not math.isnan(sc[S_REF + R_CAND_DIP])
     cand_off_dip = cand_known and abs(dip - sc[S_REF + R_CAND_DIP]) > tol_d
@@ -314,4 +327,4 @@ def _disturbed(coef, sc, step, acc_ok, a0, a1, a2, m0, m1, m2):
         sc[S_REF + R_NORM] = sc[S_REF + R_CAND_NORM]
         sc[S_REF + R_DIP] = sc[S_REF + R_CAND_DIP]
         sc[S_REF + R_CAND_S] = 0.0
-    return disturbed
+    return 1
