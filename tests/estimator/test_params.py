@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
 import pytest
 
 from margtrack import methods
@@ -79,3 +80,14 @@ def test_base_policy_parameters_are_validated():
     with pytest.raises(ValueError, match="frame must be 'NED' or 'ENU'"):
         Params(frame="NWU")
     assert Params(frame="ned").frame == "NED"
+
+
+def test_wrong_types_name_the_parameter():
+    with pytest.raises(ValueError, match="parameter axes must be a number, got 'a'"):
+        _Demo(axes=("a", 1.0))
+    with pytest.raises(ValueError, match="parameter count must be a number, got True"):
+        _Demo(count=True)
+    with pytest.raises(ValueError, match=r"parameter axes .* got -0.2$"):
+        _Demo(axes=np.array([0.1, -0.2]))
+    with pytest.raises(ValueError, match="parameter strict must be true or false, got 1"):
+        Params(strict=1)

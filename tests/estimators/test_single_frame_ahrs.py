@@ -63,8 +63,10 @@ def test_fqa_matches_ahrs_fqa_in_ned(noise):
 def test_quest_and_davenport_match_ahrs_in_nwu(noise):
     _, acc, mag = _data(300, seed=2, noise=noise)
     weights = (1.0, 0.5)
-    quest = Quest(frame="NED", dip_deg=DIP, weights=weights).run(acc=acc, mag=mag, rate_hz=1.0)
-    dav = Davenport(frame="NED", dip_deg=DIP, weights=weights).run(acc=acc, mag=mag, rate_hz=1.0)
+    quest = Quest(frame="NED", mag_dip_ref_deg=DIP, weights=weights)
+    quest = quest.run(acc=acc, mag=mag, rate_hz=1.0)
+    dav = Davenport(frame="NED", mag_dip_ref_deg=DIP, weights=weights)
+    dav = dav.run(acc=acc, mag=mag, rate_hz=1.0)
     ahrs_quest = ahrs_filters.QUEST(acc=acc, mag=mag, magnetic_dip=-DIP,
                                     weights=np.array(weights)).Q
     unit_acc = acc / np.linalg.norm(acc, axis=1)[:, None]
@@ -98,7 +100,7 @@ def test_ahrs_quest_fails_near_half_turns_where_ours_does_not():
     q_ned = quat.multiply(NWU_TO_NED, q_nwu)
     acc = quat.rotate_inverse(q_ned, frames.gravity_reference("NED"))[None]
     mag = quat.rotate_inverse(q_ned, frames.mag_reference("NED", DIP))[None]
-    ours = Quest(frame="NED", dip_deg=DIP).run(acc=acc, mag=mag, rate_hz=1.0).quat[0]
+    ours = Quest(frame="NED", mag_dip_ref_deg=DIP).run(acc=acc, mag=mag, rate_hz=1.0).quat[0]
     theirs = ahrs_filters.QUEST(acc=acc, mag=mag, magnetic_dip=-DIP).Q[0]
     assert quat.angle_between(ours, q_ned) < 1e-9
     assert quat.angle_between(quat.multiply(NWU_TO_NED, theirs), q_ned) > 1e-6

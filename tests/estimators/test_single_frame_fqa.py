@@ -111,11 +111,13 @@ def test_field_disturbance_moves_only_the_heading_of_fqa_but_tilts_quest():
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"epsilon": 0.2, "alpha_deg": 20.0}, r"epsilon must be in \[0, tan\(alpha_deg / 2\)\)"),
-        ({"epsilon": -0.1}, "epsilon must be in"),
-        ({"alpha_deg": 0.0}, r"alpha_deg must be in \(0, 90\]"),
-        ({"alpha_deg": 120.0}, r"alpha_deg must be in \(0, 90\]"),
-        ({"epsilon": float("nan")}, "epsilon must be in"),
+        ({"epsilon": 0.2, "alpha_deg": 20.0},
+         r"parameter epsilon must be < tan\(alpha_deg / 2\) = 0.1763 for alpha_deg = 20"),
+        ({"epsilon": 0.45, "alpha_deg": 45.0}, r"parameter epsilon must be < tan\(alpha_deg / 2\)"),
+        ({"epsilon": -0.1}, "parameter epsilon must be a finite number, >= 0"),
+        ({"alpha_deg": 0.0}, "parameter alpha_deg must be a finite number, > 0 and <= 90 deg"),
+        ({"alpha_deg": 120.0}, "parameter alpha_deg must be a finite number, > 0 and <= 90 deg"),
+        ({"epsilon": float("nan")}, "parameter epsilon must be a finite number"),
     ],
 )
 def test_fqa_parameters_are_validated(kwargs, message):

@@ -90,17 +90,24 @@ class ParamSpec:
                     f"got {value!r}"
                 )
             return value
-        if isinstance(value, (bool, np.bool_)):
+        if self.type is bool:
+            if not isinstance(value, (bool, np.bool_)):
+                raise ValueError(f"parameter {self.name} must be true or false, got {value!r}")
             return bool(value)
+        if isinstance(value, (bool, np.bool_)):
+            raise ValueError(f"parameter {self.name} must be a number, got {value!r}")
         if isinstance(value, (tuple, list, np.ndarray)):
-            return tuple(self._number(v) for v in np.asarray(value, dtype=np.float64).ravel())
+            return tuple(self._number(v) for v in np.ravel(np.asarray(value, dtype=object)))
         return self._number(value)
 
     def _number(self, value: Any) -> float | int:
+        if isinstance(value, (bool, np.bool_)):
+            raise ValueError(f"parameter {self.name} must be a number, got {value!r}")
         try:
             number = float(value)
         except (TypeError, ValueError):
             raise ValueError(f"parameter {self.name} must be a number, got {value!r}") from None
+        value = value.item() if isinstance(value, np.generic) else value
         unit = f" {self.unit}" if self.unit else ""
         ok = math.isfinite(number)
         ok = ok and (self.gt is None or number > self.gt) and (self.ge is None or number >= self.ge)

@@ -7,28 +7,22 @@ decomposition (Jacobi), exact to rounding: the reference QUEST, FQA, TRIAD and
 Gauss-Newton are tested against. Unlike TRIAD and FQA, the field enters pitch and roll too,
 so a disturbed field tilts the estimate (002 III-C).
 
-The reference field needs the magnetic dip: give ``dip_deg`` or leave it None to measure
-it from each sensor's first valid sample (as the angle between accelerometer and
-magnetometer), kept in the state. Only magnetic north is known, so the heading is relative
-to it.
+The reference field needs the magnetic dip: give the shared ``mag_dip_ref_deg`` (which
+also centres the input screening's dip gate) or leave it None to measure it from each
+sensor's first valid sample (as the angle between accelerometer and magnetometer), kept in
+the state. Only magnetic north is known, so the heading is relative to it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from margtrack.estimators.prefilter import (
-    LowpassParams,
-    MeasuredDipState,
-    SingleFrameEstimator,
-    check_dip_deg,
-    dip_rad_or_nan,
-)
+from margtrack.estimator import param
+from margtrack.estimators.prefilter import LowpassParams, MeasuredDipState, SingleFrameEstimator
 from margtrack.kernels.davenport import davenport_run
 
 __all__ = ["Davenport", "DavenportParams", "WahbaParams"]
@@ -43,27 +37,22 @@ class WahbaParams(LowpassParams):
         matters; raising a_field lets the field pull more on pitch and roll (with a
         disturbed field, for worse). Optimal: inversely proportional to each unit vector's
         error variance (Shuster & Oh).
-    dip_deg : magnetic dip (inclination) of the reference field, deg, positive down, in
-        [-90, 90]; default None: measured from each sensor's first valid sample.
+
+    The reference field's dip is the shared ``mag_dip_ref_deg``, deg, positive down
+    (None, the default: measured from each sensor's first valid sample).
     """
 
-    weights: tuple[float, float] = (1.0, 1.0)
-    dip_deg: float | None = None
+    weights: tuple[float, float] = param(
+        (1.0, 1.0), gt=0, help="Wahba weights (a_gravity, a_field); only their ratio matters"
+    )
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        w = self.weights
-        if not isinstance(w, Sequence) or isinstance(w, str) or len(w) != 2:
-            raise ValueError(f"weights must be two numbers (a_gravity, a_field), got {w!r}")
-        try:
-            values = tuple(float(x) for x in w)
-        except (TypeError, ValueError):
-            message = f"weights must be two numbers (a_gravity, a_field), got {w!r}"
-            raise ValueError(message) from None
-        if not all(np.isfinite(x) and x > 0 for x in values):
-            raise ValueError(f"weights must be finite and > 0, got {w!r}")
-        object.__setattr__(self, "weights", values)
-        object.__setattr__(self, "dip_deg", check_dip_deg(self.dip_deg))
+    def check(self) -> None:
+        """weights are two numbers."""
+        super().check()
+        if len(self.weights) != 2:
+            raise ValueError(
+                f"parameter weights must be two numbers (a_gravity, a_field); got {self.weights!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -74,8 +63,9 @@ class DavenportParams(WahbaParams):
 class Davenport(SingleFrameEstimator[DavenportParams, MeasuredDipState]):
     """Davenport's q-method (``--method davenport``), the exact Wahba solution.
 
-    Outputs: ``degenerate`` (N,) int8 (0 ok, 1 zero accelerometer, 2 zero magnetometer,
-    3 accelerometer parallel to the field; the previous orientation is repeated).
+    Outputs: ``degenerate`` (N,) int8 (0 ok, 1 zero accelerometer: the previous
+    orientation is repeated; 2 zero magnetometer, 3 accelerometer parallel to the field:
+    levelled onto gravity, heading kept; mapped onto the flags, see ``prefilter``).
     Quaternions have ``w >= 0``. The state's ``dip_rad`` holds the measured dip.
     """
 
@@ -100,7 +90,7 @@ class Davenport(SingleFrameEstimator[DavenportParams, MeasuredDipState]):
         out = np.empty((acc.shape[0], acc.shape[1], 4))
         flags = np.empty(acc.shape[:2], dtype=np.int8)
         davenport_run(
-            acc, mag, dt, up, north, dip_rad_or_nan(p.dip_deg), p.weights[0], p.weights[1],
+            acc, mag, dt, up, north, self._dip_rad(), p.weights[0], p.weights[1],
             acc_cut, mag_cut, order,
             state.quat, state.dip_rad, state.lowpass_history, state.lowpass_ready, out, flags,
         )

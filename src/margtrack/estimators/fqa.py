@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from margtrack import frames
+from margtrack.estimator import param
 from margtrack.estimators.prefilter import LowpassParams, SingleFrameEstimator, SingleFrameState
 from margtrack.kernels.fqa import fqa_run
 
@@ -43,32 +44,33 @@ class FqaParams(LowpassParams):
         (0, 90]; default 20, 002's value (its Figs. 7-8 use epsilon 0.2, alpha 45).
     """
 
-    epsilon: float = 0.1
-    alpha_deg: float = 20.0
+    epsilon: float = param(
+        0.1, ge=0, help="use the virtual offset sensor while cos(pitch) is below this (002)"
+    )
+    alpha_deg: float = param(
+        20.0, unit="deg", gt=0, le=90, help="offset of the virtual sensor about body y (002)"
+    )
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        alpha = self.alpha_deg
-        if isinstance(alpha, bool) or not (np.isfinite(alpha) and 0.0 < alpha <= 90.0):
-            raise ValueError(f"alpha_deg must be in (0, 90] deg, got {alpha!r}")
-        limit = math.tan(math.radians(alpha) / 2.0)
-        eps = self.epsilon
-        if isinstance(eps, bool) or not (np.isfinite(eps) and 0.0 <= eps < limit):
+    def check(self) -> None:
+        """epsilon < tan(alpha_deg / 2): the virtual sensor must stay off its singularity."""
+        super().check()
+        limit = math.tan(math.radians(self.alpha_deg) / 2.0)
+        if not self.epsilon < limit:
             raise ValueError(
-                f"epsilon must be in [0, tan(alpha_deg / 2)) = [0, {limit:.4g}) for "
-                f"alpha_deg = {alpha}, got {eps!r}: beyond it the virtual sensor turned by "
-                "alpha can itself reach pitch ±90 deg; raise alpha_deg or lower epsilon"
+                f"parameter epsilon must be < tan(alpha_deg / 2) = {limit:.4g} for "
+                f"alpha_deg = {self.alpha_deg:g}; got {self.epsilon!r}: beyond it the virtual "
+                "sensor turned by alpha can itself reach pitch ±90 deg; raise alpha_deg or "
+                "lower epsilon"
             )
-        object.__setattr__(self, "epsilon", float(eps))
-        object.__setattr__(self, "alpha_deg", float(alpha))
 
 
 class Fqa(SingleFrameEstimator[FqaParams, SingleFrameState]):
     """The factored quaternion algorithm (``--method fqa``); needs a magnetometer.
 
-    Outputs, per sample: ``degenerate`` int8 (0 ok, 1 zero accelerometer, 2 zero
-    magnetometer, 3 accelerometer parallel to the field; the previous orientation is
-    repeated) and ``switched`` bool (the virtual offset sensor was used, ``cos θ <
+    Outputs, per sample: ``degenerate`` int8 (0 ok, 1 zero accelerometer: the previous
+    orientation is repeated; 2 zero magnetometer, 3 accelerometer parallel to the field:
+    levelled onto gravity, heading kept; mapped onto the flags, see ``prefilter``) and
+    ``switched`` bool (the virtual offset sensor was used, ``cos θ <
     epsilon``). Quaternions have ``w >= 0``; :func:`margtrack.quaternion.continuous` makes
     a series sign-continuous.
     """

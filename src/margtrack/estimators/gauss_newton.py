@@ -24,13 +24,8 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from margtrack.estimators.prefilter import (
-    LowpassParams,
-    MeasuredDipState,
-    SingleFrameEstimator,
-    check_dip_deg,
-    dip_rad_or_nan,
-)
+from margtrack.estimator import param
+from margtrack.estimators.prefilter import LowpassParams, MeasuredDipState, SingleFrameEstimator
 from margtrack.kernels.gauss_newton import gauss_newton_run
 
 __all__ = ["GaussNewton", "GaussNewtonParams", "GaussNewtonState", "Newton", "NewtonParams"]
@@ -40,40 +35,28 @@ __all__ = ["GaussNewton", "GaussNewtonParams", "GaussNewtonState", "Newton", "Ne
 class GaussNewtonParams(LowpassParams):
     """Parameters of the Gauss-Newton and Newton fits (plus ``frame`` and the prefilter).
 
-    mag_weight : ρ >= 0 multiplying the magnetic residual (000 eq. 17): the criterion is
+    mag_weight : ρ > 0 multiplying the magnetic residual (000 eq. 17): the criterion is
         ``|ε_g|² + ρ² |ε_m|²``. Default 1 (equal weight, as 001). Lowering it lets a
         disturbed field pull less on the estimate; 0 leaves the heading undetermined and
         is refused.
-    dip_deg : magnetic dip of the reference field, deg, positive down, in [-90, 90];
-        default None: measured from each sensor's first valid sample.
     tolerance : stop iterating when the criterion (dimensionless, unit vectors) or its
         decrease over the last iteration is at most this; default 1e-10 (001 5.1's
         convergence experiment; the quaternion is then within about 1e-5 rad of the
         noise-free solution, and with noise the last iteration changes it by less).
-    max_iterations : cap on iterations per sample, >= 1; default 10 (001: 3-4 from a poor
-        guess, 1 when tracking).
+    max_iterations : cap on iterations per sample, in [1, 1000]; default 10 (001: 3-4 from
+        a poor guess, 1 when tracking).
+
+    The reference field's dip is the shared ``mag_dip_ref_deg``, deg, positive down
+    (None, the default: measured from each sensor's first valid sample).
     """
 
-    mag_weight: float = 1.0
-    dip_deg: float | None = None
-    tolerance: float = 1e-10
-    max_iterations: int = 10
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        rho = self.mag_weight
-        if isinstance(rho, bool) or not (np.isfinite(rho) and rho > 0):
-            raise ValueError(f"mag_weight must be finite and > 0, got {rho!r}")
-        tol = self.tolerance
-        if isinstance(tol, bool) or not (np.isfinite(tol) and tol >= 0):
-            raise ValueError(f"tolerance must be finite and >= 0, got {tol!r}")
-        cap = self.max_iterations
-        if isinstance(cap, bool) or int(cap) != cap or not 1 <= cap <= 1000:
-            raise ValueError(f"max_iterations must be an integer in [1, 1000], got {cap!r}")
-        object.__setattr__(self, "mag_weight", float(rho))
-        object.__setattr__(self, "tolerance", float(tol))
-        object.__setattr__(self, "max_iterations", int(cap))
-        object.__setattr__(self, "dip_deg", check_dip_deg(self.dip_deg))
+    mag_weight: float = param(
+        1.0, gt=0, help="weight rho of the magnetic residual: Q = |e_g|^2 + rho^2 |e_m|^2"
+    )
+    tolerance: float = param(
+        1e-10, ge=0, help="stop when the criterion, or its decrease, is at most this"
+    )
+    max_iterations: int = param(10, ge=1, le=1000, help="cap on iterations per sample")
 
 
 @dataclass(frozen=True)
@@ -101,9 +84,10 @@ class GaussNewtonState(MeasuredDipState):
 class GaussNewton(SingleFrameEstimator[GaussNewtonParams, GaussNewtonState]):
     """Gauss-Newton quaternion fit (``--method gauss-newton``), 001 eqs. 20-23.
 
-    Outputs, per sample: ``degenerate`` int8 (0 ok, 1 zero accelerometer, 2 zero
-    magnetometer, 3 accelerometer parallel to the field, 4 singular normal equations; the
-    previous orientation is repeated), ``iterations`` int32 (updates applied) and
+    Outputs, per sample: ``degenerate`` int8 (0 ok, 1 zero accelerometer: the previous
+    orientation is repeated; 2 zero magnetometer, 3 accelerometer parallel to the field,
+    4 singular normal equations: levelled onto gravity, heading kept; mapped onto the
+    flags, see ``prefilter``), ``iterations`` int32 (updates applied) and
     ``criterion`` (Q = |ε_g|² + ρ²|ε_m|² at the last iterate, NaN where flagged 1-3).
     ``reset(q0)`` makes q0 the first sample's initial guess. Quaternions have ``w >= 0``.
     """
@@ -139,7 +123,7 @@ class GaussNewton(SingleFrameEstimator[GaussNewtonParams, GaussNewtonState]):
         iterations = np.empty(shape, dtype=np.int32)
         criterion = np.empty(shape)
         gauss_newton_run(
-            acc, mag, dt, up, north, dip_rad_or_nan(p.dip_deg), p.mag_weight, p.tolerance,
+            acc, mag, dt, up, north, self._dip_rad(), p.mag_weight, p.tolerance,
             p.max_iterations, self._newton, acc_cut, mag_cut, order,
             state.quat, state.has_estimate, state.dip_rad, state.lowpass_history,
             state.lowpass_ready, out, flags, iterations, criterion,

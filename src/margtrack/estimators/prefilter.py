@@ -1,4 +1,4 @@
-"""What every single-frame estimator shares: the optional low-pass prefilter and its state.
+"""What every single-frame estimator shares: the optional low-pass prefilter, state, flags.
 
 Single-frame estimators (TRIAD, FQA, QUEST, Davenport, Gauss-Newton, Newton) turn each
 accelerometer + magnetometer sample into an orientation on its own. An accelerometer also
@@ -9,25 +9,38 @@ accelerometer and, separately, on the magnetometer (``None`` switches it off). I
 lives in the state, so ``update`` one sample at a time, one ``run`` and runs split
 anywhere give the same result.
 
-Degenerate samples (zero accelerometer or magnetometer, or the two parallel) are never
-turned into NaN: they are flagged in the ``degenerate`` output and repeat the previous
-orientation (the initial one, identity unless ``reset(q0)`` gave one, if none came before).
+Unusable samples never turn into NaN. The input screening zeroes a vector it cannot use
+(the magnetometer also when its norm or dip is far from the reference: these methods have
+no disturbance rejection of their own); the prefilter passes such a "no measurement"
+through without filtering it in. Then, per sample (``degenerate`` output, int8):
+
+- no accelerometer (code 1): the previous orientation is repeated (the initial one,
+  identity unless ``reset(q0)`` gave one, if none came before); flag ``ACC_IGNORED``;
+- no field (2), or a field within 0.06 deg of the accelerometer's direction (3), or (the
+  fits only) singular normal equations (4): the heading cannot be measured, so the
+  previous orientation is levelled onto the measured gravity: inclination from the
+  accelerometer, heading kept (``kernels.triad.level``). Codes 3 and 4 are flagged
+  ``MAG_IGNORED``; code 2 already carries the screening's reason (``MAG_IGNORED``, or
+  ``MAG_DISTURBED``, which is not relabelled).
+
 Every estimator returns quaternions with ``w >= 0``; :func:`margtrack.quaternion.continuous`
 makes a series sign-continuous where that matters (002's closing remark on ``q`` and
-``-q``).
+``-q``). The field's unit does not matter: the kernels use its direction only.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from margtrack import frames
-from margtrack.estimators.base import Estimator, Params, State
+from margtrack.estimator import Estimator, Flag, Params, State, param
+from margtrack.kernels import triad as triad_kernel
 
 Array = NDArray[np.float64]
 
@@ -44,10 +57,13 @@ __all__ = [
 #: meaning of the ``degenerate`` output codes (int8), shared by all single-frame estimators
 DEGENERATE_CODES = {
     0: "ok",
-    1: "zero accelerometer vector",
-    2: "zero magnetometer vector",
-    3: "accelerometer parallel to the magnetic field (less than 0.06 deg apart)",
-    4: "iteration failed (singular normal equations)",
+    1: "zero accelerometer vector (orientation held; ACC_IGNORED)",
+    2: "zero magnetometer vector (levelled onto gravity, heading kept; flagged by the "
+    "screening)",
+    3: "accelerometer parallel to the magnetic field, less than 0.06 deg apart (levelled "
+    "onto gravity, heading kept; MAG_IGNORED)",
+    4: "fit failed: singular normal equations (levelled onto gravity, heading kept; "
+    "MAG_IGNORED)",
 }
 
 
@@ -58,30 +74,30 @@ class LowpassParams(Params):
     acc_lowpass_hz : cut-off of the accelerometer low-pass, Hz, or None (default) for no
         filter. Lowering it rejects more linear acceleration and delays the inclination
         more (a second-order filter delays a slow rotation by about ``0.225 / f_c`` s).
-        Must stay below half the sample rate (checked against every run's ``dt``).
+        Must stay below half the sample rate (checked against the typical interval of
+        every run; a single longer interval, dropped samples, restarts the filter).
     mag_lowpass_hz : the same for the magnetometer, Hz, or None (default).
     lowpass_order : 1 or 2 (default): order of the Butterworth filter.
+
+    The reference dip the Wahba estimators and the fits need is the shared
+    ``mag_dip_ref_deg`` (None: measured from each sensor's first valid sample).
     """
 
-    acc_lowpass_hz: float | None = None
-    mag_lowpass_hz: float | None = None
-    lowpass_order: int = 2
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        for name in ("acc_lowpass_hz", "mag_lowpass_hz"):
-            value = getattr(self, name)
-            if value is None:
-                continue
-            if isinstance(value, bool) or not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite cut-off > 0 Hz or None, got {value!r}")
-            object.__setattr__(self, name, float(value))
-        if self.lowpass_order not in (1, 2) or isinstance(self.lowpass_order, bool):
-            raise ValueError(f"lowpass_order must be 1 or 2, got {self.lowpass_order!r}")
+    acc_lowpass_hz: float | None = param(
+        None, unit="Hz", gt=0, help="acceleration low-pass cut-off, below half the rate (None: off)"
+    )
+    mag_lowpass_hz: float | None = param(
+        None, unit="Hz", gt=0, help="field low-pass cut-off, below half the rate (None: off)"
+    )
+    lowpass_order: int = param(2, ge=1, le=2, help="order of the Butterworth low-pass, 1 or 2")
 
 
 def check_dip_deg(dip_deg: float | None) -> float | None:
-    """Validate a reference dip parameter: None (measure it) or a float in [-90, 90] deg."""
+    """Validate a reference dip parameter: None (measure it) or a float in [-90, 90] deg.
+
+    Kept for ``filters/ekf.py`` only (the single-frame estimators use the declared
+    ``mag_dip_ref_deg``); remove it once the EKF does too.
+    """
     if dip_deg is None:
         return None
     if isinstance(dip_deg, bool) or not (np.isfinite(dip_deg) and -90.0 <= dip_deg <= 90.0):
@@ -123,7 +139,9 @@ class MeasuredDipState(SingleFrameState):
     """State of an estimator that compares the field with a reference vector (QUEST, ...).
 
     dip_rad : (S,) reference dip (inclination, positive down) measured from each sensor's
-        first valid sample when the ``dip_deg`` parameter is None, rad; NaN until measured.
+        first valid sample when the ``mag_dip_ref_deg`` parameter is None, rad; NaN until
+        measured. A property of the place, not of the orientation: kept when the
+        estimator restarts after a gap.
     """
 
     dip_rad: Array
@@ -142,11 +160,15 @@ S = TypeVar("S", bound=SingleFrameState)
 class SingleFrameEstimator(Estimator[P, S]):
     """Base of the single-frame estimators: no gyroscope, magnetometer required, prefilter.
 
-    Subclasses implement ``_process`` with one kernel call that takes :meth:`_lowpass_args`.
+    Subclasses implement ``_process`` with one kernel call that takes :meth:`_lowpass_args`
+    and return the kernel's codes as the ``degenerate`` output, which :meth:`_method_flags`
+    maps onto the flags (see the module docstring). A restart after a gap starts the
+    low-pass filters afresh and keeps a measured dip (``kept_on_restart``).
     """
 
     uses_gyr: ClassVar[bool] = False
     mag_optional: ClassVar[bool] = False
+    kept_on_restart: ClassVar[tuple[str, ...]] = ("dip_rad",)
 
     def _new_state(self, quat0: Array) -> S:
         return SingleFrameState.fresh(quat0)  # type: ignore[return-value]
@@ -156,26 +178,52 @@ class SingleFrameEstimator(Estimator[P, S]):
         # sample is flagged by the kernel instead of raising here
         return np.tile([1.0, 0.0, 0.0, 0.0], (acc0.shape[0], 1))
 
+    def _method_flags(self, outputs: Mapping[str, NDArray[Any]]) -> NDArray[np.uint16] | None:
+        """ACC_IGNORED for code 1, MAG_IGNORED for codes 3 and 4 of ``degenerate``.
+
+        Code 2 (no field) adds nothing: every zero field the kernel sees was zeroed by the
+        screening, which flagged why (MAG_IGNORED, or MAG_DISTURBED, not relabelled).
+        """
+        code = outputs["degenerate"]
+        flags = np.where(code == triad_kernel.ZERO_ACC, np.uint16(Flag.ACC_IGNORED), np.uint16(0))
+        no_heading = (code == triad_kernel.PARALLEL) | (code == triad_kernel.SOLVER_FAILED)
+        flags[no_heading] |= np.uint16(Flag.MAG_IGNORED)
+        base = super()._method_flags(outputs)
+        return flags if base is None else flags | base
+
     def _lowpass_args(self, dt: Array) -> tuple[float, float, int]:
         """(acc cut-off, mag cut-off, order) for the kernel, 0.0 meaning off.
 
-        Raises ``ValueError`` if a cut-off is not below half the lowest sample rate of ``dt``.
+        Raises ``ValueError`` if a cut-off is not below half the sample rate: that of the
+        typical (median) interval when ``dt`` has at least two, else ``rate_hz`` if the
+        estimator was built with one. Intervals of 0 (first sample, gaps) do not count; a
+        single longer interval (dropped samples) restarts the filter in the kernel instead.
         """
         p = self.params
-        dt_max = float(dt.max())
+        if p.acc_lowpass_hz is None and p.mag_lowpass_hz is None:
+            return 0.0, 0.0, p.lowpass_order
+        steps = dt[dt > 0.0]
+        if steps.size >= 2:
+            typical = float(np.median(steps))
+            where = f"the typical sample interval {typical:.6g} s"
+        elif self.rate_hz is not None:
+            typical = 1.0 / self.rate_hz
+            where = f"rate_hz = {self.rate_hz:g}"
+        else:
+            typical = 0.0
+            where = ""
         for name in ("acc_lowpass_hz", "mag_lowpass_hz"):
             cutoff = getattr(p, name)
-            if cutoff is not None and cutoff * dt_max >= 0.5:
+            if cutoff is not None and cutoff * typical >= 0.5:
                 raise ValueError(
                     f"{name} = {cutoff} Hz is not below half the sample rate "
-                    f"({0.5 / dt_max:.6g} Hz at the longest sample interval {dt_max:.6g} s); "
-                    "lower the cut-off"
+                    f"({0.5 / typical:.6g} Hz at {where}); lower the cut-off"
                 )
-        return (
-            p.acc_lowpass_hz or 0.0,
-            p.mag_lowpass_hz or 0.0,
-            p.lowpass_order,
-        )
+        return p.acc_lowpass_hz or 0.0, p.mag_lowpass_hz or 0.0, p.lowpass_order
+
+    def _dip_rad(self) -> float:
+        """The kernel's encoding of ``mag_dip_ref_deg``: radians, or NaN for "measure it"."""
+        return dip_rad_or_nan(self.params.mag_dip_ref_deg)
 
     def _earth_axes(self) -> tuple[Array, Array]:
         """Unit up and unit horizontal (magnetic) north of the output frame, (3,) each."""

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from margtrack.estimators.davenport import WahbaParams
-from margtrack.estimators.prefilter import MeasuredDipState, SingleFrameEstimator, dip_rad_or_nan
+from margtrack.estimators.prefilter import MeasuredDipState, SingleFrameEstimator
 from margtrack.kernels.quest import quest_run
 
 __all__ = ["Quest", "QuestParams"]
@@ -29,18 +29,19 @@ __all__ = ["Quest", "QuestParams"]
 
 @dataclass(frozen=True)
 class QuestParams(WahbaParams):
-    """QUEST's parameters: ``weights`` (a_gravity, a_field), ``dip_deg`` (see
-    :class:`~margtrack.estimators.davenport.WahbaParams`), the output ``frame`` and the
-    low-pass prefilter."""
+    """QUEST's parameters: ``weights`` (a_gravity, a_field) and the reference dip
+    ``mag_dip_ref_deg`` (see :class:`~margtrack.estimators.davenport.WahbaParams`), the
+    output ``frame`` and the low-pass prefilter."""
 
 
 class Quest(SingleFrameEstimator[QuestParams, MeasuredDipState]):
     """QUEST (``--method quest``) with sequential rotations near 180 deg.
 
-    Outputs, per sample: ``degenerate`` int8 (0 ok, 1 zero accelerometer, 2 zero
-    magnetometer, 3 accelerometer parallel to the field; the previous orientation is
-    repeated) and ``sequential_rotation`` int8 (0 none, 1/2/3: the reference frame was
-    turned by 180 deg about earth x/y/z). Quaternions have ``w >= 0``.
+    Outputs, per sample: ``degenerate`` int8 (0 ok, 1 zero accelerometer: the previous
+    orientation is repeated; 2 zero magnetometer, 3 accelerometer parallel to the field:
+    levelled onto gravity, heading kept; mapped onto the flags, see ``prefilter``) and
+    ``sequential_rotation`` int8 (0 none, 1/2/3: the reference frame was turned by 180 deg
+    about earth x/y/z). Quaternions have ``w >= 0``.
     """
 
     name = "quest"
@@ -66,7 +67,7 @@ class Quest(SingleFrameEstimator[QuestParams, MeasuredDipState]):
         flags = np.empty(shape, dtype=np.int8)
         rotation = np.empty(shape, dtype=np.int8)
         quest_run(
-            acc, mag, dt, up, north, dip_rad_or_nan(p.dip_deg), p.weights[0], p.weights[1],
+            acc, mag, dt, up, north, self._dip_rad(), p.weights[0], p.weights[1],
             acc_cut, mag_cut, order,
             state.quat, state.dip_rad, state.lowpass_history, state.lowpass_ready,
             out, flags, rotation,

@@ -32,9 +32,10 @@ class TriadParams(LowpassParams):
 class Triad(SingleFrameEstimator[TriadParams, SingleFrameState]):
     """Single-frame TRIAD estimator (``--method triad``); needs a magnetometer.
 
-    Outputs: ``degenerate`` (N,) int8 per sample: 0 ok, 1 zero accelerometer, 2 zero
-    magnetometer, 3 accelerometer parallel to the field. A degenerate sample repeats the
-    previous orientation instead of producing NaN. Quaternions have ``w >= 0``.
+    Outputs: ``degenerate`` (N,) int8 per sample: 0 ok, 1 zero accelerometer (the previous
+    orientation is repeated), 2 zero magnetometer, 3 accelerometer parallel to the field
+    (levelled onto gravity, heading kept); mapped onto the flags (see ``prefilter``).
+    Never NaN. Quaternions have ``w >= 0``.
     """
 
     name = "triad"

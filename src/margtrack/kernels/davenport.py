@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 
 from margtrack.kernels.lowpass import prefilter_sensor
-from margtrack.kernels.triad import FASTMATH, OK, unit_pair
+from margtrack.kernels.triad import FASTMATH, OK, ZERO_ACC, level, unit_pair
 
 #: Jacobi sweeps before giving up (each sweep squares the off-diagonal size; 4-6 suffice)
 MAX_SWEEPS = 12
@@ -160,7 +160,11 @@ def reference_field(acc, mag, dip_rad, dip_state, ux, uy, uz, nx, ny, nz):
 @njit(cache=True, fastmath=FASTMATH)
 def _davenport_sensor(acc, mag, ux, uy, uz, hx, hy, hz, a1, a2, quat_state, k_work, v_work,
                       quat_out, flags):
-    """Davenport over one sensor's (N, 3) series; quat_state (4,) in/out."""
+    """Davenport over one sensor's (N, 3) series; quat_state (4,) in/out.
+
+    A zero accelerometer holds the previous orientation; a zero or parallel field levels
+    it onto the measured gravity (``triad.level``), heading kept.
+    """
     pw, px, py, pz = quat_state[0], quat_state[1], quat_state[2], quat_state[3]
     for i in range(acc.shape[0]):
         flag, ax, ay, az, mx, my, mz = unit_pair(
@@ -170,6 +174,8 @@ def _davenport_sensor(acc, mag, ux, uy, uz, hx, hy, hz, a1, a2, quat_state, k_wo
         if flag == OK:
             fill_symmetric(k_work, profile(a1, ux, uy, uz, ax, ay, az, a2, hx, hy, hz, mx, my, mz))
             pw, px, py, pz, _ = largest_eigenvector(k_work, v_work)
+        elif flag != ZERO_ACC:
+            pw, px, py, pz = level(pw, px, py, pz, ax, ay, az, ux, uy, uz)
         quat_out[i, 0], quat_out[i, 1], quat_out[i, 2], quat_out[i, 3] = pw, px, py, pz
     quat_state[0], quat_state[1], quat_state[2], quat_state[3] = pw, px, py, pz
 
@@ -187,7 +193,9 @@ def davenport_run(
     sample (kept in dip_state (S,)); acc_weight, mag_weight: a_i of Wahba's loss;
     prefilter cut-offs (0 = off) and order; quat_state (S, 4), lowpass_history
     (S, 2, 4, 3), lowpass_ready (S, 2): state, in/out. Fills quat_out (S, N, 4) (w >= 0)
-    and flags (S, N) int8 (see ``unit_pair``).
+    and flags (S, N) int8 (see ``unit_pair``). A zero accelerometer repeats the previous
+    orientation; a zero or parallel field levels it (inclination from the accelerometer,
+    heading kept).
     """
     ux, uy, uz = up[0], up[1], up[2]
     nx, ny, nz = north[0], north[1], north[2]

@@ -15,7 +15,7 @@ from numba import njit
 
 from margtrack.kernels._quat import mul
 from margtrack.kernels.lowpass import prefilter_sensor
-from margtrack.kernels.triad import FASTMATH, OK, unit_pair
+from margtrack.kernels.triad import FASTMATH, OK, ZERO_ACC, level, rotate, unit_pair
 
 
 @njit(cache=True, inline="always")
@@ -87,7 +87,13 @@ def fqa_unit(ax, ay, az, mx, my, mz, epsilon, cos_half_alpha, sin_half_alpha):
 @njit(cache=True, fastmath=FASTMATH)
 def _fqa_sensor(acc, mag, fw, fx, fy, fz, epsilon, cos_half_alpha, sin_half_alpha,
                 quat_state, quat_out, flags, switched_out):
-    """FQA over one sensor's (N, 3) series; quat_state (4,) in/out (held by flagged samples)."""
+    """FQA over one sensor's (N, 3) series; quat_state (4,) in/out.
+
+    A zero accelerometer holds the previous orientation; a zero or parallel field levels
+    it onto the measured gravity (``triad.level``), heading kept.
+    """
+    # earth up in the output frame: NED's (0, 0, -1) turned by the frame rotation
+    ux, uy, uz = rotate(fw, fx, fy, fz, 0.0, 0.0, -1.0)
     pw, px, py, pz = quat_state[0], quat_state[1], quat_state[2], quat_state[3]
     for i in range(acc.shape[0]):
         flag, ax, ay, az, mx, my, mz = unit_pair(
@@ -102,6 +108,8 @@ def _fqa_sensor(acc, mag, fw, fx, fy, fz, epsilon, cos_half_alpha, sin_half_alph
             w, x, y, z = mul(fw, fx, fy, fz, w, x, y, z)  # NED to the output frame
             inv = math.copysign(1.0, w) / math.sqrt(w * w + x * x + y * y + z * z)
             pw, px, py, pz = w * inv, x * inv, y * inv, z * inv
+        elif flag != ZERO_ACC:
+            pw, px, py, pz = level(pw, px, py, pz, ax, ay, az, ux, uy, uz)
         switched_out[i] = switched
         quat_out[i, 0], quat_out[i, 1], quat_out[i, 2], quat_out[i, 3] = pw, px, py, pz
     quat_state[0], quat_state[1], quat_state[2], quat_state[3] = pw, px, py, pz
@@ -121,6 +129,9 @@ def fqa_run(
     acc/mag_cutoff_hz (0 = off), order: prefilter; quat_state (S, 4), lowpass_history
     (S, 2, 4, 3), lowpass_ready (S, 2): state, in/out. Fills quat_out (S, N, 4) with unit
     quaternions, w >= 0; flags (S, N) int8 (see ``unit_pair``); switched_out (S, N) bool.
+    A zero accelerometer (the screening's "no measurement") repeats the previous
+    orientation; a zero or parallel field levels it (inclination from the accelerometer,
+    heading kept).
     """
     fw, fx, fy, fz = frame_quat[0], frame_quat[1], frame_quat[2], frame_quat[3]
     filtering = acc_cutoff_hz > 0.0 or mag_cutoff_hz > 0.0

@@ -37,6 +37,8 @@ from margtrack.kernels.triad import (
     FASTMATH,
     OK,
     SOLVER_FAILED,
+    ZERO_ACC,
+    level,
     reference_triad,
     triad_unit,
     unit_pair,
@@ -279,7 +281,11 @@ def newton_solve(
 def _fit_sensor(acc, mag, ux, uy, uz, hx, hy, hz, triad_axes, mag_weight, tolerance,
                 max_iterations, newton, quat_state, has_estimate, quat_out, flags,
                 iterations_out, criterion_out):
-    """Fits over one sensor's (N, 3) series; quat_state (4,), has_estimate (1,) in/out."""
+    """Fits over one sensor's (N, 3) series; quat_state (4,), has_estimate (1,) in/out.
+
+    A zero accelerometer holds the previous orientation; a zero or parallel field, or a
+    failed fit, levels it onto the measured gravity (``triad.level``), heading kept.
+    """
     s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z = triad_axes
     pw, px, py, pz = quat_state[0], quat_state[1], quat_state[2], quat_state[3]
     for i in range(acc.shape[0]):
@@ -304,7 +310,11 @@ def _fit_sensor(acc, mag, ux, uy, uz, hx, hy, hz, triad_axes, mag_weight, tolera
                 pw, px, py, pz = w, x, y, z
                 has_estimate[0] = True
             else:
+                # the fit failed: as for a field without heading, keep the heading
                 flag = SOLVER_FAILED
+                pw, px, py, pz = level(pw, px, py, pz, ax, ay, az, ux, uy, uz)
+        elif flag != ZERO_ACC:
+            pw, px, py, pz = level(pw, px, py, pz, ax, ay, az, ux, uy, uz)
         flags[i] = flag
         iterations_out[i] = iterations
         criterion_out[i] = crit
@@ -329,7 +339,9 @@ def gauss_newton_run(
     has_estimate (S,) is False or the previous estimate is more than 30 deg from TRIAD.
     State arrays are updated in place. Fills quat_out (S, N, 4) (w >= 0), flags (S, N)
     int8 (``unit_pair`` codes, 4 = singular equations), iterations_out (S, N) int32 and
-    criterion_out (S, N) (NaN where flagged 1-3).
+    criterion_out (S, N) (NaN where flagged 1-3). A zero accelerometer repeats the
+    previous orientation; a zero or parallel field, or singular equations, level it
+    (inclination from the accelerometer, heading kept).
     """
     ux, uy, uz = up[0], up[1], up[2]
     nx, ny, nz = north[0], north[1], north[2]

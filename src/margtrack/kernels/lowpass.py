@@ -10,6 +10,13 @@ split anywhere.
 History layout per filtered triad: ``(4, 3)`` rows ``[x[n-1], x[n-2], y[n-1], y[n-2]]``.
 A filter starts in steady state at its first sample (every row set to that sample), so the
 output begins at the input instead of ramping up from zero.
+
+Screened input (``estimator/screening.py``): an all-zero triad means "no measurement". It
+passes through as zero (the estimator then skips that vector) and is never filtered in:
+a running filter holds its last input over the sample's interval, so the timing stays
+right and the output resumes smoothly. ``dt = 0`` integrates nothing. An interval too long
+for the cut-off (``f_c dt >= 1/2``, beyond the bilinear transform: dropped samples) leaves
+nothing of the history worth keeping, so the filter restarts at the next measurement.
 """
 
 from __future__ import annotations
@@ -28,7 +35,8 @@ def coefficients(cutoff_hz, dt_s, order):
 
     ``y[n] = b0 x[n] + b1 x[n-1] + b2 x[n-2] - a1 y[n-1] - a2 y[n-2]``, with
     ``K = tan(π f_c dt)`` (bilinear transform, pre-warped cut-off). The caller guarantees
-    ``0 < cutoff_hz < 1 / (2 dt)``. DC gain is exactly 1: ``b0 + b1 + b2 = 1 + a1 + a2``.
+    ``0 < cutoff_hz < 1 / (2 dt)`` (:func:`filter_series` restarts beyond it). DC gain is
+    exactly 1: ``b0 + b1 + b2 = 1 + a1 + a2``.
     """
     k = math.tan(math.pi * cutoff_hz * dt_s)
     if order == 1:
@@ -72,8 +80,11 @@ def filter_series(signal, dt, cutoff_hz, order, history, ready, channel, out):
     """Low-pass one triad series (N, 3) into ``out`` (N, 3); ``cutoff_hz`` <= 0: copy.
 
     history (4, 3) and ready[channel] are that filter's state (updated). A filter that
-    is not ready starts in steady state at its first sample; one that is off is marked
-    not ready, so turning it on again (``set_params``) restarts it at that sample.
+    is not ready starts in steady state at its first measurement; one that is off is marked
+    not ready, so turning it on again (``set_params``) restarts it at that sample. dt (N,)
+    s before each sample (0: none). An all-zero sample (no measurement) is output as zero
+    and a running filter steps over its interval with its last input held; an interval
+    with ``cutoff_hz * dt >= 1/2`` restarts the filter at the next measurement.
     """
     n = signal.shape[0]
     if not cutoff_hz > 0.0:
@@ -85,13 +96,30 @@ def filter_series(signal, dt, cutoff_hz, order, history, ready, channel, out):
     coef = PASS_THROUGH
     for i in range(n):
         x, y, z = signal[i, 0], signal[i, 1], signal[i, 2]
-        if not ready[channel]:
+        step_dt = dt[i]
+        too_long = cutoff_hz * step_dt >= 0.5
+        if x == 0.0 and y == 0.0 and z == 0.0:
+            # no measurement: passes through; the filter holds its input over the interval
+            out[i, 0], out[i, 1], out[i, 2] = 0.0, 0.0, 0.0
+            if ready[channel] and step_dt > 0.0:
+                if too_long:
+                    ready[channel] = False
+                else:
+                    if step_dt != last_dt:
+                        coef = coefficients(cutoff_hz, step_dt, order)
+                        last_dt = step_dt
+                    step(history, history[0, 0], history[0, 1], history[0, 2], coef)
+            continue
+        if not ready[channel] or too_long:
             ready[channel] = True
             x, y, z = start(history, x, y, z)
+        elif not step_dt > 0.0:
+            # no time has passed since the last filtered sample: its output stands
+            x, y, z = history[2, 0], history[2, 1], history[2, 2]
         else:
-            if dt[i] != last_dt:
-                coef = coefficients(cutoff_hz, dt[i], order)
-                last_dt = dt[i]
+            if step_dt != last_dt:
+                coef = coefficients(cutoff_hz, step_dt, order)
+                last_dt = step_dt
             x, y, z = step(history, x, y, z, coef)
         out[i, 0], out[i, 1], out[i, 2] = x, y, z
 

@@ -29,7 +29,7 @@ from numba import njit
 from margtrack.kernels._quat import cross
 from margtrack.kernels.davenport import reference_field
 from margtrack.kernels.lowpass import prefilter_sensor
-from margtrack.kernels.triad import FASTMATH, OK, unit_pair
+from margtrack.kernels.triad import FASTMATH, OK, ZERO_ACC, level, unit_pair
 
 #: Sequential rotation when q_w² = γ / f'(λ) falls below this (rotation angle above
 #: 168.5 deg): there [γ, X] keeps at least 1/10 of its scale and 15 significant digits.
@@ -115,7 +115,11 @@ def quest_unit(a1, ux, uy, uz, ax, ay, az, a2, hx, hy, hz, mx, my, mz, ref_cos, 
 @njit(cache=True, fastmath=FASTMATH)
 def _quest_sensor(acc, mag, ux, uy, uz, hx, hy, hz, ref_cos, ref_sin, a1, a2, quat_state,
                   quat_out, flags, rotation_out):
-    """QUEST over one sensor's (N, 3) series; quat_state (4,) in/out."""
+    """QUEST over one sensor's (N, 3) series; quat_state (4,) in/out.
+
+    A zero accelerometer holds the previous orientation; a zero or parallel field levels
+    it onto the measured gravity (``triad.level``), heading kept.
+    """
     pw, px, py, pz = quat_state[0], quat_state[1], quat_state[2], quat_state[3]
     for i in range(acc.shape[0]):
         flag, ax, ay, az, mx, my, mz = unit_pair(
@@ -127,6 +131,8 @@ def _quest_sensor(acc, mag, ux, uy, uz, hx, hy, hz, ref_cos, ref_sin, a1, a2, qu
             axis, pw, px, py, pz = quest_unit(
                 a1, ux, uy, uz, ax, ay, az, a2, hx, hy, hz, mx, my, mz, ref_cos, ref_sin
             )
+        elif flag != ZERO_ACC:
+            pw, px, py, pz = level(pw, px, py, pz, ax, ay, az, ux, uy, uz)
         rotation_out[i] = axis
         quat_out[i, 0], quat_out[i, 1], quat_out[i, 2], quat_out[i, 3] = pw, px, py, pz
     quat_state[0], quat_state[1], quat_state[2], quat_state[3] = pw, px, py, pz
@@ -146,6 +152,8 @@ def quest_run(
     (0 = off) and order; quat_state (S, 4), lowpass_history (S, 2, 4, 3), lowpass_ready
     (S, 2): state, in/out. Fills quat_out (S, N, 4) (w >= 0), flags (S, N) int8 (see
     ``unit_pair``) and rotation_out (S, N) int8 (sequential rotation axis, 0 = none).
+    A zero accelerometer repeats the previous orientation; a zero or parallel field levels
+    it (inclination from the accelerometer, heading kept).
     """
     ux, uy, uz = up[0], up[1], up[2]
     nx, ny, nz = north[0], north[1], north[2]

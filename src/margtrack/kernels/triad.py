@@ -1,8 +1,12 @@
 """Kernel of the TRIAD single-frame estimator (002 eqs. 1-8; 003 eqs. 10-13).
 
 Also home of the degenerate-sample policy every single-frame kernel shares
-(:func:`unit_pair` and the flag codes): a zero accelerometer or magnetometer vector, or the
-two (nearly) parallel, is flagged and the previous orientation is repeated.
+(:func:`unit_pair`, :func:`level` and the flag codes): a zero accelerometer vector (no
+measurement) repeats the previous orientation; a zero magnetometer vector, or one (nearly)
+parallel to the accelerometer, leaves the heading undetermined, so the previous
+orientation is levelled onto the measured gravity (inclination from the accelerometer,
+heading kept). The public :func:`triad` keeps the plain rule (every flagged sample
+repeats the previous output): the contract and the bias Kalman filter rely on it.
 """
 
 from __future__ import annotations
@@ -12,7 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-from margtrack.kernels._quat import cross, from_matrix
+from margtrack.kernels._quat import cross, from_matrix, mul
 from margtrack.kernels.lowpass import prefilter_sensor
 
 #: fast-math flags of the kernels: reciprocals, fused multiply-add, reassociation and
@@ -51,6 +55,59 @@ def unit_pair(ax, ay, az, mx, my, mz):
     if cx * cx + cy * cy + cz * cz < PARALLEL_SINE * PARALLEL_SINE:
         return PARALLEL, ax, ay, az, mx, my, mz
     return OK, ax, ay, az, mx, my, mz
+
+
+@njit(cache=True, inline="always")
+def rotate(w, x, y, z, vx, vy, vz):
+    """``q ⊗ v ⊗ q*`` for a unit quaternion q = (w, x, y, z): body vector v to earth."""
+    tx, ty, tz = cross(x, y, z, vx, vy, vz)
+    tx, ty, tz = 2.0 * tx, 2.0 * ty, 2.0 * tz
+    cx, cy, cz = cross(x, y, z, tx, ty, tz)
+    return vx + w * tx + cx, vy + w * ty + cy, vz + w * tz + cz
+
+
+@njit(cache=True, inline="always")
+def level(pw, px, py, pz, ax, ay, az, ux, uy, uz):
+    """The orientation p levelled onto the measured gravity, heading kept: ``c ⊗ p``.
+
+    p (unit, body to earth) is the previous orientation; (ax, ay, az) the accelerometer
+    (any non-zero length, points up at rest); u the unit earth up. c is the shortest arc
+    taking ``v = p ⊗ â ⊗ p*`` (where p puts the measured up) onto u: a rotation about the
+    horizontal axis ``v × u``, so it has no component about the vertical and the heading
+    (the twist of p about up, as the heading error of the metrics measures it) is
+    unchanged, while the new orientation maps â exactly onto up. Used where the field
+    cannot give a heading (zero, or parallel to the accelerometer). A zero accelerometer
+    returns p. Returns (w, x, y, z) with w >= 0.
+    """
+    na = math.sqrt(ax * ax + ay * ay + az * az)
+    if not na > 0.0:
+        return pw, px, py, pz
+    vx, vy, vz = rotate(pw, px, py, pz, ax / na, ay / na, az / na)
+    nv = math.sqrt(vx * vx + vy * vy + vz * vz)
+    vx, vy, vz = vx / nv, vy / nv, vz / nv
+    d = vx * ux + vy * uy + vz * uz
+    cx, cy, cz = cross(vx, vy, vz, ux, uy, uz)
+    if d >= 0.0:
+        cw = 1.0 + d  # [1 + v·u, v × u]: accurate while the angle is at most 90 deg
+    else:
+        # the same rotation scaled by (1 - v·u)/|v × u|: [|v × u|, (1 - v·u) axis], which
+        # stays accurate up to a half turn (see quaternion.shortest_arc)
+        n = math.sqrt(cx * cx + cy * cy + cz * cz)
+        if n > 0.0:
+            ex, ey, ez = cx / n, cy / n, cz / n
+        else:  # upside down exactly: a half turn about a horizontal axis
+            if abs(ux) <= abs(uy) and abs(ux) <= abs(uz):
+                ex, ey, ez = cross(ux, uy, uz, 1.0, 0.0, 0.0)
+            elif abs(uy) <= abs(uz):
+                ex, ey, ez = cross(ux, uy, uz, 0.0, 1.0, 0.0)
+            else:
+                ex, ey, ez = cross(ux, uy, uz, 0.0, 0.0, 1.0)
+            ne = math.sqrt(ex * ex + ey * ey + ez * ez)
+            ex, ey, ez = ex / ne, ey / ne, ez / ne
+        cw, cx, cy, cz = n, (1.0 - d) * ex, (1.0 - d) * ey, (1.0 - d) * ez
+    w, x, y, z = mul(cw, cx, cy, cz, pw, px, py, pz)
+    inv = math.copysign(1.0, w) / math.sqrt(w * w + x * x + y * y + z * z)
+    return w * inv, x * inv, y * inv, z * inv
 
 
 @njit(cache=True, inline="always")
@@ -122,7 +179,11 @@ def triad(acc, mag, up, north, quat_out, flags):
 @njit(cache=True, fastmath=FASTMATH)
 def _triad_sensor(acc, mag, s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z, quat_state,
                   quat_out, flags):
-    """TRIAD over one sensor's (N, 3) series; quat_state (4,) in/out (held by flagged samples)."""
+    """TRIAD over one sensor's (N, 3) series; quat_state (4,) in/out.
+
+    A zero accelerometer holds the previous orientation; a zero or parallel field levels
+    it (:func:`level`; s1 is up).
+    """
     pw, px, py, pz = quat_state[0], quat_state[1], quat_state[2], quat_state[3]
     for i in range(acc.shape[0]):
         flag, ax, ay, az, mx, my, mz = unit_pair(
@@ -133,6 +194,8 @@ def _triad_sensor(acc, mag, s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z, quat_st
             pw, px, py, pz = triad_unit(
                 ax, ay, az, mx, my, mz, s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z
             )
+        elif flag != ZERO_ACC:
+            pw, px, py, pz = level(pw, px, py, pz, ax, ay, az, s1x, s1y, s1z)
         quat_out[i, 0], quat_out[i, 1], quat_out[i, 2], quat_out[i, 3] = pw, px, py, pz
     quat_state[0], quat_state[1], quat_state[2], quat_state[3] = pw, px, py, pz
 
@@ -148,7 +211,9 @@ def triad_run(
     acc_cutoff_hz, mag_cutoff_hz: prefilter cut-offs (0 = off), order 1 or 2;
     quat_state (S, 4), lowpass_history (S, 2, 4, 3), lowpass_ready (S, 2): state, in/out;
     quat_out (S, N, 4) filled with w >= 0; flags (S, N) int8 (see :func:`unit_pair`).
-    A flagged sample repeats the previous orientation (the state's before the first).
+    A zero accelerometer repeats the previous orientation (the state's before the first);
+    a zero or parallel field levels it onto the measured gravity (:func:`level`). All-zero
+    vectors are the input screening's "no measurement"; the prefilter passes them through.
     """
     s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z = reference_triad(
         up[0], up[1], up[2], north[0], north[1], north[2]
