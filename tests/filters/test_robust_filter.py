@@ -18,13 +18,10 @@ def _deg(x):
     return np.degrees(np.sqrt(np.mean(np.square(x))))
 
 
-@pytest.mark.parametrize("frame", ["ENU", "NED"])
-def test_noise_free_motion_is_tracked_in_both_frames(frame):
+def test_noise_free_motion_raises_no_disturbance_flag():
+    # the estimate against the truth in both frames is tests/test_registry_truth.py's
     traj = sim.random_motion(20.0, 100.0, seed=4, max_rate_deg_s=150.0, bandwidth_hz=1.0)
-    rec = sim.simulate(traj, frame=frame, seed=0)
-    est = Robust(frame=frame).run(rec)
-    err = error_series(est.quat, rec.quat_true, frame, frame)
-    assert np.degrees(err.total_rad.max()) < 0.01
+    est = Robust().run(sim.simulate(traj, seed=0))
     assert not est.outputs["mag_disturbed"].any()
 
 

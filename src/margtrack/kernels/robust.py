@@ -13,7 +13,17 @@ FQA, 002, where heading is kept apart from inclination):
   the horizontal magnetometer direction only (004's vector rejection), skipped while the
   field's norm or dip disagrees with its tracked reference.
 
-State layout per sensor (``state`` (S, N_STATE)) is given by the ``I_*`` offsets below.
+Start-up (after the first sample and after every restart): the heading gain is ``1/n``
+for its n-th measurement since the start (the initial orientation counting as the first)
+while that exceeds the nominal gain and for at most ``converge_s``, as VQF does at
+start-up: the heading is the mean of the measurements so far, so a start sample taken
+during motion stops dominating it after a second or two instead of after several
+``tau_mag`` (20 s). The accelerometer low-pass starts at its first sample, steady (a mean
+of the first seconds was tried: it lets a periodic motion's linear acceleration through,
+49 deg of tilt on a 1 Hz limb swing, against 2 deg from the start sample).
+
+The state is passed as named arrays (see :class:`margtrack.filters.robust.RobustState`);
+the kernel loads each sensor's state into locals, runs its samples and stores it back.
 """
 
 from __future__ import annotations
@@ -24,43 +34,29 @@ from numba import njit
 
 from margtrack.kernels._quat import exp_half, mul, normalized
 
-# -- state layout ------------------------------------------------------------------------
-I_QGYR = 0  # 4: q_gyr
-I_QACC = 4  # 4: q_acc
-I_HEAD = 8  # heading, rad
-I_BIAS = 9  # 3: gyro bias, rad/s (body)
-I_BIAS_VAR = 12  # 3: variance of the bias estimate per body axis, (rad/s)²
-I_ACC_LP = 15  # 3: accelerometer low-passed in frame I, m/s²
-I_GYR_REST = 18  # 3: gyro low-passed for rest detection, rad/s
-I_ACC_REST = 21  # 3: accelerometer low-passed for rest detection, m/s²
-I_REST_T = 24  # time spent still, s
-I_MAG_NORM_REF = 25  # reference field norm (0: none yet)
-I_MAG_DIP_REF = 26  # reference dip, rad
-I_MAG_CAND_NORM = 27  # candidate norm while disturbed
-I_MAG_CAND_DIP = 28  # candidate dip while disturbed
-I_MAG_CAND_T = 29  # time the candidate has been consistent, s
-I_BW = 30  # 6: Butterworth states (s1, s2) of the three accelerometer channels
-I_BW_DT = 36  # sample interval the coefficients below were computed for, s
-I_BW_COEF = 37  # 3: b0, a1, a2 of the second-order Butterworth low-pass
-N_STATE = 40
+# -- stages of the accelerometer low-pass (``acc_lp_stage``) --------------------------------
+LP_EMPTY = 0  # no usable accelerometer sample since the start
+LP_FIRST = 1  # holds the first sample (rotated into I); filter states set at the next step
+LP_FILTER = 2  # the second-order Butterworth low-pass, running
 
 # -- parameter layout (``coef`` (N_COEF,)) ------------------------------------------------
-C_TAU_ACC = 0
-C_TAU_MAG = 1
-C_BIAS_WALK = 2
-C_BIAS_REST_NOISE = 3
-C_BIAS_MOTION_NOISE = 4
-C_BIAS_MAX = 5
-C_REST_GYR = 6
-C_REST_ACC = 7
-C_REST_MIN_T = 8
-C_REST_TAU = 9
-C_MAG_NORM_TOL = 10
-C_MAG_DIP_TOL = 11
-C_MAG_NEW_REF_T = 12
-C_MAG_REF_TAU = 13
-C_NED = 14
-N_COEF = 15
+C_TAU_ACC = 0  # s
+C_TAU_MAG = 1  # s
+C_BIAS_WALK = 2  # rad/s/√s
+C_BIAS_REST_NOISE = 3  # rad/s
+C_BIAS_MOTION_NOISE = 4  # rad/s
+C_BIAS_MAX = 5  # rad/s
+C_REST_GYR = 6  # rad/s
+C_REST_ACC = 7  # m/s²
+C_REST_MIN_T = 8  # s
+C_REST_TAU = 9  # s
+C_MAG_NORM_TOL = 10  # relative
+C_MAG_DIP_TOL = 11  # rad
+C_MAG_NEW_REF_T = 12  # s
+C_MAG_REF_TAU = 13  # s
+C_NED = 14  # 1: output in NED
+C_CONVERGE = 15  # s, longest start-up phase of the heading (0: none)
+N_COEF = 16
 
 
 @njit(cache=True, inline="always")
@@ -90,76 +86,59 @@ def _lowpass_gain(dt, tau):
 
 
 @njit(cache=True)
-def _butterworth(st, step, tau):
-    """Second-order Butterworth low-pass coefficients for time constant tau at interval step.
+def butterworth_coefficients(step, tau):
+    """(b0, a1, a2) of the second-order Butterworth low-pass for time constant tau at step.
 
     Cut-off ``f_c = sqrt(2) / (2 pi tau)`` (so its step response is close to a first-order
     filter's with the same tau), discretised by the bilinear transform with pre-warping;
-    recomputed only when the sample interval changes.
+    ``b1 = 2 b0`` and ``b2 = b0``.
     """
-    if step != st[I_BW_DT]:
-        fc = math.sqrt(2.0) / (2.0 * math.pi * tau)
-        c = math.tan(math.pi * fc * step)
-        d = c * c + math.sqrt(2.0) * c + 1.0
-        st[I_BW_COEF] = c * c / d
-        st[I_BW_COEF + 1] = 2.0 * (c * c - 1.0) / d
-        st[I_BW_COEF + 2] = (1.0 - math.sqrt(2.0) * c + c * c) / d
-        st[I_BW_DT] = step
+    fc = math.sqrt(2.0) / (2.0 * math.pi * tau)
+    c = math.tan(math.pi * fc * step)
+    d = c * c + math.sqrt(2.0) * c + 1.0
+    return c * c / d, 2.0 * (c * c - 1.0) / d, (1.0 - math.sqrt(2.0) * c + c * c) / d
 
 
 @njit(cache=True, inline="always")
-def _butterworth_step(st, k, x):
-    """Filter one sample of channel k (transposed direct form II); returns the output."""
-    b0, a1, a2 = st[I_BW_COEF], st[I_BW_COEF + 1], st[I_BW_COEF + 2]
-    y = b0 * x + st[I_BW + 2 * k]
-    st[I_BW + 2 * k] = 2.0 * b0 * x - a1 * y + st[I_BW + 2 * k + 1]
-    st[I_BW + 2 * k + 1] = b0 * x - a2 * y
-    return y
+def _bw_step(b0, a1, a2, s1, s2, x):
+    """One sample through the low-pass (transposed direct form II): (y, s1, s2)."""
+    y = b0 * x + s1
+    return y, 2.0 * b0 * x - a1 * y + s2, b0 * x - a2 * y
 
 
 @njit(cache=True, inline="always")
-def _butterworth_hold(st, k, x):
-    """Set channel k's states to the steady state of a constant input x."""
-    b0, a1, a2 = st[I_BW_COEF], st[I_BW_COEF + 1], st[I_BW_COEF + 2]
-    st[I_BW + 2 * k + 1] = (b0 - a2) * x
-    st[I_BW + 2 * k] = (2.0 * b0 - a1) * x + st[I_BW + 2 * k + 1]
-
-
-@njit(cache=True)
-def _init(st, acc, q0):
-    """Start from q0 (ENU): all of it in q_acc, heading 0, filters at the first sample."""
-    st[I_QGYR] = 1.0
-    st[I_QGYR + 1] = 0.0
-    st[I_QGYR + 2] = 0.0
-    st[I_QGYR + 3] = 0.0
-    for k in range(4):
-        st[I_QACC + k] = q0[k]
-    st[I_HEAD] = 0.0
-    for k in range(3):
-        st[I_ACC_LP + k] = 0.0
-        st[I_ACC_REST + k] = acc[k]
-        st[I_GYR_REST + k] = 0.0
-    # q_gyr starts at identity, so the strapdown frame I is the body frame at sample 0
-    st[I_ACC_LP] = acc[0]
-    st[I_ACC_LP + 1] = acc[1]
-    st[I_ACC_LP + 2] = acc[2]
-    st[I_BW_DT] = -1.0  # coefficients not computed yet
-    st[I_REST_T] = 0.0
-    st[I_MAG_NORM_REF] = 0.0
-    st[I_MAG_CAND_T] = 0.0
+def _bw_hold(b0, a1, a2, x):
+    """States (s1, s2) of the low-pass in the steady state of a constant input x."""
+    s2 = (b0 - a2) * x
+    return (2.0 * b0 - a1) * x + s2, s2
 
 
 @njit(cache=True)
 def robust_filter(
-    state,
     coef,
     gyr,
     acc,
     mag,
     has_mag,
     dt,
-    fresh,
-    q_init,
+    q_gyr,
+    q_acc,
+    heading,
+    bias,
+    bias_var,
+    acc_lp,
+    acc_lp_bw,
+    acc_lp_stage,
+    heading_n,
+    since_start,
+    gyr_rest,
+    acc_rest,
+    still_t,
+    mag_norm_ref,
+    mag_dip_ref,
+    mag_cand_norm,
+    mag_cand_dip,
+    mag_cand_t,
     quat_out,
     quat6_out,
     bias_out,
@@ -169,192 +148,241 @@ def robust_filter(
 ):
     """Run S filters over N samples.
 
-    state (S, N_STATE) in/out; coef (N_COEF,); gyr, acc, mag (S, N, 3) rad/s, m/s², any
-    field unit (mag ignored when ``has_mag`` is False); dt (N,) s; fresh (S,) bool: state
-    not yet initialised (then sample 0 initialises from ``q_init`` (S, 4), given in ENU);
-    outputs (S, N, ...) filled: 9-D (or 6-D without mag) quaternion in the requested frame,
-    6-D quaternion, bias rad/s, bias standard deviation rad/s, rest flag, mag disturbed flag.
+    coef (N_COEF,); gyr, acc, mag (S, N, 3) rad/s, m/s², any field unit (mag ignored when
+    ``has_mag`` is False; an all-zero acc or mag sample is no measurement); dt (N,) s
+    (0: nothing to integrate). State, in/out, per sensor (meaning and units in
+    ``RobustState``): q_gyr, q_acc (S, 4), heading (S,), bias, bias_var (S, 3), acc_lp
+    (S, 3), acc_lp_bw (S, 3, 2), acc_lp_stage (S,) int8, heading_n (S,) int64,
+    since_start (S,), gyr_rest, acc_rest (S, 3), still_t (S,), and the field tracker (S,):
+    mag_norm_ref, mag_dip_ref rad (0 / nan: taken from the next sample), mag_cand_norm,
+    mag_cand_dip rad, mag_cand_t s. Outputs (S, N, ...): 9-D (6-D without mag) quaternion in
+    the requested frame, 6-D quaternion, bias rad/s, its standard deviation rad/s, rest
+    flag, mag disturbed flag.
     """
     n_sensors, n = gyr.shape[0], gyr.shape[1]
     ned = coef[C_NED] > 0.5
     h = math.sqrt(0.5)
+    tau_acc, tau_mag = coef[C_TAU_ACC], coef[C_TAU_MAG]
+    converge = coef[C_CONVERGE]
+    bias_max = coef[C_BIAS_MAX]
     for s in range(n_sensors):
-        st = state[s]
-        # low-pass gains depend only on the interval: recompute when it changes
+        # -- load the state into locals ------------------------------------------------
+        gw, gx, gy, gz = q_gyr[s, 0], q_gyr[s, 1], q_gyr[s, 2], q_gyr[s, 3]
+        cw, cx, cy, cz = q_acc[s, 0], q_acc[s, 1], q_acc[s, 2], q_acc[s, 3]
+        head = heading[s]
+        b0_, b1_, b2_ = bias[s, 0], bias[s, 1], bias[s, 2]
+        p0, p1, p2 = bias_var[s, 0], bias_var[s, 1], bias_var[s, 2]
+        l0, l1, l2 = acc_lp[s, 0], acc_lp[s, 1], acc_lp[s, 2]
+        s10, s20 = acc_lp_bw[s, 0, 0], acc_lp_bw[s, 0, 1]
+        s11, s21 = acc_lp_bw[s, 1, 0], acc_lp_bw[s, 1, 1]
+        s12, s22 = acc_lp_bw[s, 2, 0], acc_lp_bw[s, 2, 1]
+        stage = acc_lp_stage[s]
+        hd_n = heading_n[s]
+        t_start = since_start[s]
+        gr0, gr1, gr2 = gyr_rest[s, 0], gyr_rest[s, 1], gyr_rest[s, 2]
+        ar0, ar1, ar2 = acc_rest[s, 0], acc_rest[s, 1], acc_rest[s, 2]
+        t_still = still_t[s]
+        ref_n, ref_d = mag_norm_ref[s], mag_dip_ref[s]
+        cand_n, cand_d, cand_t = mag_cand_norm[s], mag_cand_dip[s], mag_cand_t[s]
+        # gains and low-pass coefficients depend only on the interval: recomputed when it
+        # changes (derived, not state)
         gains_step = -1.0
         k_rest = k_ref = k_mag = 0.0
+        bw_step = -1.0
+        bb0 = ba1 = ba2 = 0.0
         for i in range(n):
             g0, g1, g2 = gyr[s, i, 0], gyr[s, i, 1], gyr[s, i, 2]
             a0, a1, a2 = acc[s, i, 0], acc[s, i, 1], acc[s, i, 2]
+            acc_ok = a0 != 0.0 or a1 != 0.0 or a2 != 0.0
             step = dt[i]
-            if i == 0 and fresh[s]:
-                _init(st, acc[s, i], q_init[s])
-                step = 0.0
             rest = False
             disturbed = False
+            if acc_ok and stage == LP_EMPTY:
+                # the first usable sample since the start: it starts both low-passes (q_gyr
+                # is the identity at a start, so I is the body frame then)
+                l0, l1, l2 = _rotate(gw, gx, gy, gz, a0, a1, a2)
+                ar0, ar1, ar2 = a0, a1, a2
+                stage = LP_FIRST
+                acc_ok = False  # used: not filtered a second time below
             if step > 0.0 and step != gains_step:
                 k_rest = _lowpass_gain(step, coef[C_REST_TAU])
                 k_ref = _lowpass_gain(step, coef[C_MAG_REF_TAU])
-                k_mag = _lowpass_gain(step, coef[C_TAU_MAG])
+                k_mag = _lowpass_gain(step, tau_mag)
                 gains_step = step
             if step > 0.0:
+                t_start += step
                 # -- 1. strapdown: q_gyr ⊗ exp((ω - b) dt / 2) -------------------------
-                w0 = g0 - st[I_BIAS]
-                w1 = g1 - st[I_BIAS + 1]
-                w2 = g2 - st[I_BIAS + 2]
-                dw, dx, dy, dz = exp_half(w0, w1, w2, step)
-                qw, qx, qy, qz = mul(
-                    st[I_QGYR], st[I_QGYR + 1], st[I_QGYR + 2], st[I_QGYR + 3], dw, dx, dy, dz
-                )
-                qw, qx, qy, qz = normalized(qw, qx, qy, qz)
-                st[I_QGYR], st[I_QGYR + 1], st[I_QGYR + 2], st[I_QGYR + 3] = qw, qx, qy, qz
+                dw, dx, dy, dz = exp_half(g0 - b0_, g1 - b1_, g2 - b2_, step)
+                gw, gx, gy, gz = mul(gw, gx, gy, gz, dw, dx, dy, dz)
+                gw, gx, gy, gz = normalized(gw, gx, gy, gz)
 
                 # -- 2. bias: random walk between measurements -------------------------
                 walk = coef[C_BIAS_WALK] ** 2 * step
-                for k in range(3):
-                    st[I_BIAS_VAR + k] += walk
+                p0 += walk
+                p1 += walk
+                p2 += walk
 
                 # -- 3. rest detection: small deviation from slow means, small rate ----
-                dev_g = 0.0
-                dev_a = 0.0
-                for k, (gk, ak) in enumerate(((g0, a0), (g1, a1), (g2, a2))):
-                    st[I_GYR_REST + k] += k_rest * (gk - st[I_GYR_REST + k])
-                    st[I_ACC_REST + k] += k_rest * (ak - st[I_ACC_REST + k])
-                    dev_g += (gk - st[I_GYR_REST + k]) ** 2
-                    dev_a += (ak - st[I_ACC_REST + k]) ** 2
+                gr0 += k_rest * (g0 - gr0)
+                gr1 += k_rest * (g1 - gr1)
+                gr2 += k_rest * (g2 - gr2)
+                dev_g = (g0 - gr0) ** 2 + (g1 - gr1) ** 2 + (g2 - gr2) ** 2
                 still = (
                     dev_g < coef[C_REST_GYR] ** 2
-                    and dev_a < coef[C_REST_ACC] ** 2
-                    and abs(st[I_GYR_REST]) < coef[C_BIAS_MAX]
-                    and abs(st[I_GYR_REST + 1]) < coef[C_BIAS_MAX]
-                    and abs(st[I_GYR_REST + 2]) < coef[C_BIAS_MAX]
+                    and abs(gr0) < bias_max
+                    and abs(gr1) < bias_max
+                    and abs(gr2) < bias_max
                 )
-                st[I_REST_T] = st[I_REST_T] + step if still else 0.0
-                rest = st[I_REST_T] >= coef[C_REST_MIN_T]
+                if acc_ok:
+                    ar0 += k_rest * (a0 - ar0)
+                    ar1 += k_rest * (a1 - ar1)
+                    ar2 += k_rest * (a2 - ar2)
+                    dev_a = (a0 - ar0) ** 2 + (a1 - ar1) ** 2 + (a2 - ar2) ** 2
+                    still = still and dev_a < coef[C_REST_ACC] ** 2
+                    t_still = t_still + step if still else 0.0
+                elif not still:
+                    t_still = 0.0  # without an accelerometer the gyro alone can end rest
+                rest = still and t_still >= coef[C_REST_MIN_T]
                 if rest:
                     # at rest the gyro reads its bias: a Kalman update per axis
                     r = coef[C_BIAS_REST_NOISE] ** 2
-                    for k in range(3):
-                        p = st[I_BIAS_VAR + k]
-                        gain = p / (p + r)
-                        st[I_BIAS + k] += gain * (st[I_GYR_REST + k] - st[I_BIAS + k])
-                        st[I_BIAS_VAR + k] = (1.0 - gain) * p
+                    gain = p0 / (p0 + r)
+                    b0_ += gain * (gr0 - b0_)
+                    p0 = (1.0 - gain) * p0
+                    gain = p1 / (p1 + r)
+                    b1_ += gain * (gr1 - b1_)
+                    p1 = (1.0 - gain) * p1
+                    gain = p2 / (p2 + r)
+                    b2_ += gain * (gr2 - b2_)
+                    p2 = (1.0 - gain) * p2
 
                 # -- 4. inclination: low-passed acc in I must point up -----------------
-                ex, ey, ez = _rotate(qw, qx, qy, qz, a0, a1, a2)
-                if st[I_BW_DT] < 0.0:
-                    _butterworth(st, step, coef[C_TAU_ACC])
-                    for k in range(3):
-                        _butterworth_hold(st, k, st[I_ACC_LP + k])
-                _butterworth(st, step, coef[C_TAU_ACC])
-                st[I_ACC_LP] = _butterworth_step(st, 0, ex)
-                st[I_ACC_LP + 1] = _butterworth_step(st, 1, ey)
-                st[I_ACC_LP + 2] = _butterworth_step(st, 2, ez)
-                cw, cx, cy, cz = st[I_QACC], st[I_QACC + 1], st[I_QACC + 2], st[I_QACC + 3]
-                lx, ly, lz = _rotate(
-                    cw, cx, cy, cz, st[I_ACC_LP], st[I_ACC_LP + 1], st[I_ACC_LP + 2]
-                )
-                norm = math.sqrt(lx * lx + ly * ly + lz * lz)
-                if norm > 0.0:
-                    lx, ly, lz = lx / norm, ly / norm, lz / norm
-                    # shortest arc taking (lx, ly, lz) to up = [0, 0, 1] (004)
-                    if lz > -0.999999:
-                        sq = math.sqrt(2.0 * (1.0 + lz))
-                        rw, rx, ry = 0.5 * sq, ly / sq, -lx / sq
-                    else:
-                        rw, rx, ry = 0.0, 1.0, 0.0
-                    cw, cx, cy, cz = mul(rw, rx, ry, 0.0, cw, cx, cy, cz)
-                    cw, cx, cy, cz = normalized(cw, cx, cy, cz)
-                    st[I_QACC], st[I_QACC + 1], st[I_QACC + 2], st[I_QACC + 3] = cw, cx, cy, cz
-                    if not rest:
-                        # the applied correction rate (level frame), seen in the body, is
-                        # minus the horizontal bias error: a bias measurement in motion
-                        q6w, q6x, q6y, q6z = mul(cw, cx, cy, cz, qw, qx, qy, qz)
-                        ux, uy, uz = _rotate(
-                            q6w, -q6x, -q6y, -q6z, 2.0 * rx / step, 2.0 * ry / step, 0.0
-                        )
-                        # only the horizontal components are observed: weight by how much
-                        # of each body axis lies in the horizontal plane
-                        vx, vy, vz = _rotate(q6w, -q6x, -q6y, -q6z, 0.0, 0.0, 1.0)
-                        r = coef[C_BIAS_MOTION_NOISE] ** 2
-                        for k, (uk, vk) in enumerate(((ux, vx), (uy, vy), (uz, vz))):
-                            horizontal = 1.0 - vk * vk
+                # (an all-zero sample is no measurement: nothing is fed to the low-pass)
+                if acc_ok:
+                    ex, ey, ez = _rotate(gw, gx, gy, gz, a0, a1, a2)
+                    if step != bw_step:
+                        bb0, ba1, ba2 = butterworth_coefficients(step, tau_acc)
+                        bw_step = step
+                    if stage == LP_FIRST:
+                        # start the low-pass steady at the first sample
+                        s10, s20 = _bw_hold(bb0, ba1, ba2, l0)
+                        s11, s21 = _bw_hold(bb0, ba1, ba2, l1)
+                        s12, s22 = _bw_hold(bb0, ba1, ba2, l2)
+                        stage = LP_FILTER
+                    l0, s10, s20 = _bw_step(bb0, ba1, ba2, s10, s20, ex)
+                    l1, s11, s21 = _bw_step(bb0, ba1, ba2, s11, s21, ey)
+                    l2, s12, s22 = _bw_step(bb0, ba1, ba2, s12, s22, ez)
+                    lx, ly, lz = _rotate(cw, cx, cy, cz, l0, l1, l2)
+                    norm = math.sqrt(lx * lx + ly * ly + lz * lz)
+                    if norm > 0.0:
+                        lx, ly, lz = lx / norm, ly / norm, lz / norm
+                        # shortest arc taking (lx, ly, lz) to up = [0, 0, 1] (004)
+                        if lz > -0.999999:
+                            sq = math.sqrt(2.0 * (1.0 + lz))
+                            rw, rx, ry = 0.5 * sq, ly / sq, -lx / sq
+                        else:
+                            rw, rx, ry = 0.0, 1.0, 0.0
+                        cw, cx, cy, cz = mul(rw, rx, ry, 0.0, cw, cx, cy, cz)
+                        cw, cx, cy, cz = normalized(cw, cx, cy, cz)
+                        if not rest:
+                            # the applied correction rate (level frame), seen in the body,
+                            # is minus the horizontal bias error: a bias measurement in
+                            # motion
+                            q6w, q6x, q6y, q6z = mul(cw, cx, cy, cz, gw, gx, gy, gz)
+                            ux, uy, uz = _rotate(
+                                q6w, -q6x, -q6y, -q6z, 2.0 * rx / step, 2.0 * ry / step, 0.0
+                            )
+                            # only the horizontal components are observed: weight by how
+                            # much of each body axis lies in the horizontal plane
+                            vx, vy, vz = _rotate(q6w, -q6x, -q6y, -q6z, 0.0, 0.0, 1.0)
+                            r = coef[C_BIAS_MOTION_NOISE] ** 2
+                            horizontal = 1.0 - vx * vx
                             if horizontal > 1e-3:
-                                p = st[I_BIAS_VAR + k]
-                                gain = p * horizontal / (p * horizontal + r)
-                                st[I_BIAS + k] -= gain * uk
-                                st[I_BIAS_VAR + k] = (1.0 - gain * horizontal) * p
-                for k in range(3):
-                    b = st[I_BIAS + k]
-                    st[I_BIAS + k] = min(max(b, -coef[C_BIAS_MAX]), coef[C_BIAS_MAX])
+                                gain = p0 * horizontal / (p0 * horizontal + r)
+                                b0_ -= gain * ux
+                                p0 = (1.0 - gain * horizontal) * p0
+                            horizontal = 1.0 - vy * vy
+                            if horizontal > 1e-3:
+                                gain = p1 * horizontal / (p1 * horizontal + r)
+                                b1_ -= gain * uy
+                                p1 = (1.0 - gain * horizontal) * p1
+                            horizontal = 1.0 - vz * vz
+                            if horizontal > 1e-3:
+                                gain = p2 * horizontal / (p2 * horizontal + r)
+                                b2_ -= gain * uz
+                                p2 = (1.0 - gain * horizontal) * p2
+                b0_ = min(max(b0_, -bias_max), bias_max)
+                b1_ = min(max(b1_, -bias_max), bias_max)
+                b2_ = min(max(b2_, -bias_max), bias_max)
 
             # -- 5. heading from the horizontal field --------------------------------
-            q6w, q6x, q6y, q6z = mul(
-                st[I_QACC],
-                st[I_QACC + 1],
-                st[I_QACC + 2],
-                st[I_QACC + 3],
-                st[I_QGYR],
-                st[I_QGYR + 1],
-                st[I_QGYR + 2],
-                st[I_QGYR + 3],
-            )
+            q6w, q6x, q6y, q6z = mul(cw, cx, cy, cz, gw, gx, gy, gz)
             if has_mag:
                 mx, my, mz = _rotate(q6w, q6x, q6y, q6z, mag[s, i, 0], mag[s, i, 1], mag[s, i, 2])
                 m_norm = math.sqrt(mx * mx + my * my + mz * mz)
                 horizontal = math.sqrt(mx * mx + my * my)
-                if m_norm > 0.0 and horizontal > 1e-6 * m_norm:
+                # an all-zero sample (no measurement) has m_norm == 0: skipped
+                usable = m_norm > 0.0 and horizontal > 1e-6 * m_norm
+                if usable:
                     dip = math.atan2(-mz, horizontal)
                     # angle of the horizontal field from north (+y) towards east (+x)
                     field_heading = math.atan2(mx, my)
-                    if st[I_MAG_NORM_REF] <= 0.0:
-                        st[I_MAG_NORM_REF] = m_norm
-                        st[I_MAG_DIP_REF] = dip
-                        st[I_MAG_CAND_NORM] = m_norm
-                        st[I_MAG_CAND_DIP] = dip
-                    ref_n = st[I_MAG_NORM_REF]
+                    if ref_n <= 0.0:
+                        ref_n = m_norm
+                        cand_n = m_norm
+                    if math.isnan(ref_d):
+                        ref_d = dip
+                        cand_d = dip
                     disturbed = (
                         abs(m_norm - ref_n) > coef[C_MAG_NORM_TOL] * ref_n
-                        or abs(dip - st[I_MAG_DIP_REF]) > coef[C_MAG_DIP_TOL]
+                        or abs(dip - ref_d) > coef[C_MAG_DIP_TOL]
                     )
                     if step > 0.0:
                         if not disturbed:
-                            st[I_MAG_NORM_REF] += k_ref * (m_norm - ref_n)
-                            st[I_MAG_DIP_REF] += k_ref * (dip - st[I_MAG_DIP_REF])
-                            st[I_MAG_CAND_NORM] = m_norm
-                            st[I_MAG_CAND_DIP] = dip
-                            st[I_MAG_CAND_T] = 0.0
+                            ref_n += k_ref * (m_norm - ref_n)
+                            ref_d += k_ref * (dip - ref_d)
+                            cand_n = m_norm
+                            cand_d = dip
+                            cand_t = 0.0
                             # a fixed time constant: an adaptive (Kalman) gain that grows
                             # after fast turns or rejected disturbances was measured worse
-                            # on BROAD, re-acquiring still-distorted fields too quickly
-                            error = _wrap(field_heading - st[I_HEAD])
-                            st[I_HEAD] = _wrap(st[I_HEAD] + k_mag * error)
+                            # on BROAD, re-acquiring still-distorted fields too quickly.
+                            # Start-up: the mean of the measurements while 1/n is larger
+                            k = k_mag
+                            if t_start < converge:
+                                hd_n += 1
+                                k = max(k_mag, 1.0 / hd_n)
+                            error = _wrap(field_heading - head)
+                            head = _wrap(head + k * error)
                         else:
                             # a new, steady field: track a candidate and adopt it once it
                             # has stayed consistent for long enough (a new environment)
-                            cand_n = st[I_MAG_CAND_NORM]
                             steady = (
                                 abs(m_norm - cand_n) < coef[C_MAG_NORM_TOL] * cand_n
-                                and abs(dip - st[I_MAG_CAND_DIP]) < coef[C_MAG_DIP_TOL]
+                                and abs(dip - cand_d) < coef[C_MAG_DIP_TOL]
                             )
                             if steady:
-                                st[I_MAG_CAND_T] += step
-                                st[I_MAG_CAND_NORM] += k_ref * (m_norm - cand_n)
-                                st[I_MAG_CAND_DIP] += k_ref * (dip - st[I_MAG_CAND_DIP])
+                                cand_t += step
+                                cand_n += k_ref * (m_norm - cand_n)
+                                cand_d += k_ref * (dip - cand_d)
                             else:
-                                st[I_MAG_CAND_T] = 0.0
-                                st[I_MAG_CAND_NORM] = m_norm
-                                st[I_MAG_CAND_DIP] = dip
-                            if st[I_MAG_CAND_T] > coef[C_MAG_NEW_REF_T]:
-                                st[I_MAG_NORM_REF] = st[I_MAG_CAND_NORM]
-                                st[I_MAG_DIP_REF] = st[I_MAG_CAND_DIP]
-                                st[I_MAG_CAND_T] = 0.0
+                                cand_t = 0.0
+                                cand_n = m_norm
+                                cand_d = dip
+                            if cand_t > coef[C_MAG_NEW_REF_T]:
+                                ref_n = cand_n
+                                ref_d = cand_d
+                                cand_t = 0.0
+                if t_start == 0.0 and hd_n == 1 and (disturbed or not usable):
+                    # a start without an undisturbed field: its heading is no measurement,
+                    # the first one replaces it
+                    hd_n = 0
 
             # -- 6. outputs ---------------------------------------------------------
-            half = 0.5 * st[I_HEAD]
-            hw, hz = math.cos(half), math.sin(half)
-            ow, ox, oy, oz = mul(hw, 0.0, 0.0, hz, q6w, q6x, q6y, q6z)
-            if not has_mag:
+            if has_mag:
+                half = 0.5 * head
+                ow, ox, oy, oz = mul(math.cos(half), 0.0, 0.0, math.sin(half), q6w, q6x, q6y, q6z)
+            else:
                 ow, ox, oy, oz = q6w, q6x, q6y, q6z
             if ned:
                 ow, ox, oy, oz = mul(0.0, h, h, 0.0, ow, ox, oy, oz)
@@ -363,8 +391,28 @@ def robust_filter(
             quat_out[s, i, 2], quat_out[s, i, 3] = oy, oz
             quat6_out[s, i, 0], quat6_out[s, i, 1] = q6w, q6x
             quat6_out[s, i, 2], quat6_out[s, i, 3] = q6y, q6z
-            for k in range(3):
-                bias_out[s, i, k] = st[I_BIAS + k]
-                bias_sd_out[s, i, k] = math.sqrt(st[I_BIAS_VAR + k])
+            bias_out[s, i, 0], bias_out[s, i, 1], bias_out[s, i, 2] = b0_, b1_, b2_
+            bias_sd_out[s, i, 0] = math.sqrt(p0)
+            bias_sd_out[s, i, 1] = math.sqrt(p1)
+            bias_sd_out[s, i, 2] = math.sqrt(p2)
             rest_out[s, i] = rest
             mag_dist_out[s, i] = disturbed
+
+        # -- store the state -------------------------------------------------------------
+        q_gyr[s, 0], q_gyr[s, 1], q_gyr[s, 2], q_gyr[s, 3] = gw, gx, gy, gz
+        q_acc[s, 0], q_acc[s, 1], q_acc[s, 2], q_acc[s, 3] = cw, cx, cy, cz
+        heading[s] = head
+        bias[s, 0], bias[s, 1], bias[s, 2] = b0_, b1_, b2_
+        bias_var[s, 0], bias_var[s, 1], bias_var[s, 2] = p0, p1, p2
+        acc_lp[s, 0], acc_lp[s, 1], acc_lp[s, 2] = l0, l1, l2
+        acc_lp_bw[s, 0, 0], acc_lp_bw[s, 0, 1] = s10, s20
+        acc_lp_bw[s, 1, 0], acc_lp_bw[s, 1, 1] = s11, s21
+        acc_lp_bw[s, 2, 0], acc_lp_bw[s, 2, 1] = s12, s22
+        acc_lp_stage[s] = stage
+        heading_n[s] = hd_n
+        since_start[s] = t_start
+        gyr_rest[s, 0], gyr_rest[s, 1], gyr_rest[s, 2] = gr0, gr1, gr2
+        acc_rest[s, 0], acc_rest[s, 1], acc_rest[s, 2] = ar0, ar1, ar2
+        still_t[s] = t_still
+        mag_norm_ref[s], mag_dip_ref[s] = ref_n, ref_d
+        mag_cand_norm[s], mag_cand_dip[s], mag_cand_t[s] = cand_n, cand_d, cand_t
