@@ -588,7 +588,7 @@ class Estimator(ABC, Generic[P, S]):
                     work.ready[rows] = True
                     started_all = len(starts) == int(np.count_nonzero(work.ready))
             held = np.flatnonzero(~work.ready)
-            hold = work.quat[held].copy()
+            frozen = _rows_of(work, held) if held.size else {}
             seg = slice(pos, end)
             dt = scr.dt[seg].copy()
             if waiting.size and starts and started_all:
@@ -603,8 +603,11 @@ class Estimator(ABC, Generic[P, S]):
                 dt,
             )
             if held.size:
-                q[held] = hold[:, None, :]
-                work.quat[held] = hold
+                # sensors not started yet went through the kernel in lockstep: their
+                # output is the held orientation and their state is as it was
+                for name, rows in frozen.items():
+                    getattr(work, name)[held] = rows
+                q[held] = work.quat[held][:, None, :]
                 scr.flags[held, seg] |= np.uint16(Flag.INITIALISING)
             pieces.append((q, out))
             pos = end
@@ -639,6 +642,18 @@ class Estimator(ABC, Generic[P, S]):
         # a mag-optional method starts from the accelerometer when the field is unusable
         no_field = ~(np.linalg.norm(scr.mag, axis=-1) > 0)
         return with_mag | (_usable_for_init(scr.acc, None) & no_field)
+
+
+def _rows_of(state: State, rows: NDArray[np.intp]) -> dict[str, Array]:
+    """Copies of the given sensors' rows of every per-sensor array field of ``state``."""
+    n_sensors = state.quat.shape[0]
+    out = {}
+    for f in dataclasses.fields(state):
+        value = getattr(state, f.name)
+        if f.name != "screen" and isinstance(value, np.ndarray) and value.ndim >= 1:
+            if value.shape[0] == n_sensors and f.name != "ready":
+                out[f.name] = value[rows].copy()
+    return out
 
 
 def _squeezed(est: Estimate) -> Estimate:
