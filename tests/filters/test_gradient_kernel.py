@@ -7,7 +7,8 @@ import pytest
 
 from margtrack import frames
 from margtrack import quaternion as quat
-from margtrack.filters.gradient import ACC_IGNORED, MAG_IGNORED, Gradient
+from margtrack.estimator import Flag
+from margtrack.filters.gradient import ACC_IGNORED, MAG_IGNORED, MAG_REJECTED, Gradient
 from margtrack.kernels.gradient import objective_jacobian
 
 pytestmark = pytest.mark.kernel
@@ -119,12 +120,26 @@ def test_degenerate_samples_are_flagged_not_nan():
     # sensor 1: zero field; sensor 2: field parallel to gravity (no forward component)
     mag = np.array([[20.0, 0.0, -40.0], [0.0, 0.0, 0.0], [0.0, 0.0, -40.0]])
     est = _one_step("ENU", q0, acc, mag)
-    np.testing.assert_array_equal(est.outputs["ignored"][:, 0], [ACC_IGNORED, MAG_IGNORED,
-                                                                  MAG_IGNORED])
+    # sensor 0's field is given but unused without gravity, sensor 2's has no forward
+    # component: the filter's own rejections (MAG_REJECTED), unlike sensor 1's zero field
+    np.testing.assert_array_equal(
+        est.outputs["ignored"][:, 0],
+        [ACC_IGNORED | MAG_REJECTED, MAG_IGNORED, MAG_IGNORED | MAG_REJECTED],
+    )
     assert np.all(np.isfinite(est.quat))
+    # in the common schema (the screening flagged the zero acc and the zero field itself)
+    np.testing.assert_array_equal(
+        est.flags[:, 0],
+        [Flag.ACC_IGNORED | Flag.MAG_IGNORED, Flag.MAG_IGNORED, Flag.MAG_IGNORED],
+    )
     # Madgwick's full vector still uses a vertical field; a zero one is ignored
     est = _one_step("ENU", q0, acc, mag, mag_objective="madgwick")
-    np.testing.assert_array_equal(est.outputs["ignored"][:, 0], [ACC_IGNORED, MAG_IGNORED, 0])
+    np.testing.assert_array_equal(
+        est.outputs["ignored"][:, 0], [ACC_IGNORED | MAG_REJECTED, MAG_IGNORED, 0]
+    )
+    np.testing.assert_array_equal(
+        est.flags[:, 0], [Flag.ACC_IGNORED | Flag.MAG_IGNORED, Flag.MAG_IGNORED, 0]
+    )
 
 
 def test_zero_accelerometer_step_is_pure_gyro_integration():
@@ -135,4 +150,6 @@ def test_zero_accelerometer_step_is_pure_gyro_integration():
     est = f.run(gyr=gyr, acc=np.zeros((3, 3)), mag=np.ones((3, 3)), t=[0.0, 0.1, 0.3])
     expected = quat.integrate(quat.integrate(q0, gyr[1], 0.1), gyr[2], 0.2)
     assert quat.angle_between(est.quat[-1], expected) < 1e-12
-    assert np.all(est.outputs["ignored"] == ACC_IGNORED)
+    # the given field is not used without the accelerometer: flagged as such
+    assert np.all(est.outputs["ignored"] == ACC_IGNORED | MAG_REJECTED)
+    assert np.all(est.flags & (Flag.ACC_IGNORED | Flag.MAG_IGNORED))

@@ -62,7 +62,12 @@ def align_to_gyro(
 
 
 def _sample(value: ArrayLike, name: str, n_sensors: int | None) -> Array:
-    """One sample (3,) or one per sensor (S, 3) as a finite (S, 3) float64 array."""
+    """One sample (3,) or one per sensor (S, 3) as an (S, 3) float64 array.
+
+    Shape and type are the caller's to fix (``ValueError``); values are not judged here: a
+    non-finite sample is held like any other and the input screening flags and skips it
+    at each step that uses it (:mod:`margtrack.estimator.screening`).
+    """
     try:
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -71,9 +76,6 @@ def _sample(value: ArrayLike, name: str, n_sensors: int | None) -> Array:
         arr = arr[None]
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ValueError(f"{name} must have shape (3,) or (S, 3), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        s = int(np.argwhere(~np.isfinite(arr))[0, 0])
-        raise ValueError(f"{name} of sensor {s} is not finite: {arr[s]}; drop the sample")
     if n_sensors is not None and arr.shape[0] != n_sensors:
         raise ValueError(
             f"{name} has {arr.shape[0]} sensor(s) but the filter tracks {n_sensors}; "
@@ -85,12 +87,20 @@ def _sample(value: ArrayLike, name: str, n_sensors: int | None) -> Array:
 class LiveSensors:
     """Live input from sensors arriving separately: ``update_acc``/``_mag``/``_gyr``.
 
-    Mix into an :class:`~margtrack.estimators.base.Estimator` whose state has ``acc_held``
+    Mix into an :class:`~margtrack.estimator.Estimator` whose state has ``acc_held``
     and ``mag_held`` (S, 3) arrays (zeros: nothing received). Accelerometer and magnetometer
     samples are stored as they arrive; each gyroscope sample runs one step of the filter
-    with the newest of them (zero-order hold, no latency; offline, :func:`align_to_gyro`
-    interpolates instead). Samples that arrive before the first gyroscope sample are kept
-    to initialise the orientation at that first gyroscope sample.
+    (``update``) with the newest of them (zero-order hold, no latency; offline,
+    :func:`align_to_gyro` interpolates instead). Samples that arrive before the first
+    gyroscope sample are kept to initialise the orientation at that first gyroscope sample.
+
+    Input policy: held samples reach ``update`` as received, so the screening judges them
+    at every gyroscope step, exactly as ``run`` on the zero-order-held series would. A
+    non-finite accelerometer sample held is not refused: each step until the next
+    ``update_acc`` is flagged ``INVALID | ACC_IGNORED`` and is a gyro-only step (the
+    screening's zero sentinel); a held non-finite, stuck or disturbed field is likewise
+    flagged and not used. Before the first usable accelerometer sample the output is held
+    (``INITIALISING``). Per-step flags are in :attr:`flags`.
     """
 
     _state: Any
@@ -110,7 +120,10 @@ class LiveSensors:
         super().reset(q0)  # type: ignore[misc]
 
     def update_acc(self, acc: ArrayLike) -> None:
-        """Store the newest accelerometer sample, (3,) or (S, 3) m/s² (body, points up at rest)."""
+        """Store the newest accelerometer sample, (3,) or (S, 3) m/s² (body, points up at rest).
+
+        A non-finite sample is stored too; the steps that use it flag and skip it.
+        """
         arr = _sample(acc, "acc", self._n_sensors())
         if self._state is None:
             self._pending()["acc"] = arr
@@ -118,7 +131,10 @@ class LiveSensors:
             self._state.acc_held[...] = arr
 
     def update_mag(self, mag: ArrayLike) -> None:
-        """Store the newest magnetometer sample, (3,) or (S, 3) in any field unit (body)."""
+        """Store the newest magnetometer sample, (3,) or (S, 3) in any field unit (body).
+
+        A non-finite sample is stored too; the steps that use it flag and skip it.
+        """
         arr = _sample(mag, "mag", self._n_sensors())
         if self._state is None:
             self._pending()["mag"] = arr
@@ -130,7 +146,9 @@ class LiveSensors:
 
         ``dt`` is the time since the previous gyroscope sample in s (default 1 / rate_hz).
         The first call after a reset returns the orientation measured from the held samples
-        (or ``q0``), like ``update``. Returns (4,) or (S, 4).
+        (or ``q0``), like ``update``; with an unusable held accelerometer sample it holds
+        the output until a usable one arrives. Returns (4,) or (S, 4). The held samples
+        stay as received (the step's screening does not replace them by its sentinels).
         """
         g = np.asarray(gyr, dtype=np.float64)
         one = g.ndim == 1
@@ -148,5 +166,10 @@ class LiveSensors:
         q = self.update(  # type: ignore[attr-defined]
             g, acc[0] if one else acc, None if mag is None else (mag[0] if one else mag), dt
         )
+        # the kernel stored the screened samples; keep holding them as received, so the
+        # next step sees (and flags) what run() on the held series would
+        self._state.acc_held[...] = acc
+        if mag is not None:
+            self._state.mag_held[...] = mag
         self._pending().clear()
         return q

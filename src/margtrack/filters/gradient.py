@@ -25,6 +25,7 @@ component of the accelerometer and the linear acceleration relative to the groun
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -32,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from margtrack import frames
-from margtrack.estimators.base import Estimator, Params, State
+from margtrack.estimator import Estimator, Flag, Params, State, param
 from margtrack.filters._async import LiveSensors, align_to_gyro
 from margtrack.frames import STANDARD_GRAVITY_M_S2
 from margtrack.kernels import gradient as kernel
@@ -43,6 +44,7 @@ __all__ = [
     "ACC_IGNORED",
     "MAG_IGNORED",
     "MAG_OBJECTIVES",
+    "MAG_REJECTED",
     "Gradient",
     "GradientParams",
     "GradientState",
@@ -59,6 +61,17 @@ MAG_OBJECTIVES = {
 
 ACC_IGNORED = kernel.ACC_IGNORED
 MAG_IGNORED = kernel.MAG_IGNORED
+MAG_REJECTED = kernel.MAG_REJECTED
+
+#: ``ignored`` bits (0-7) to ``Flag`` bits: what ``Gradient._method_flags`` adds
+_SCHEMA = np.array(
+    [
+        (Flag.ACC_IGNORED if bits & ACC_IGNORED else 0)
+        | (Flag.MAG_IGNORED if bits & MAG_REJECTED else 0)
+        for bits in range(8)
+    ],
+    dtype=np.uint16,
+)
 
 # q_frame = c ⊗ q_nwu: NWU (x north, y west, z up) is where the kernel computes
 _FROM_NWU = {
@@ -85,7 +98,7 @@ def _read_only(a: Array) -> Array:
 
 @dataclass(frozen=True)
 class GradientParams(Params):
-    """Parameters of the gradient-descent filter.
+    """Parameters of the gradient-descent filter (and the shared ones of :class:`Params`).
 
     beta : step of the gradient correction, rad/s (Madgwick's β, 004's μ = β Δt), >= 0.
         The estimate turns towards the accelerometer/magnetometer solution at up to β rad/s:
@@ -101,52 +114,55 @@ class GradientParams(Params):
         "madgwick": the full vector with Madgwick's reference re-estimated each sample
         (``b = [|h_h|, 0, h_v]``); plain Madgwick, the magnetometer also acts on tilt.
         "fixed": the full vector against the reference measured at the first sample and
-        then kept, as a filter with a known field direction does; any later change of the
-        field's dip tilts the estimate.
+        then kept (also across restarts after a gap), as a filter with a known field
+        direction does; any later change of the field's dip tilts the estimate.
     use_mag : False ignores a given magnetometer (6-D estimate, heading free).
     integration : "exact" (``q ⊗ exp(ω Δt/2)``, default) or "euler" (004's and ahrs's
         ``q + q̇ Δt``, first order; for reproducing ahrs.filters.Madgwick).
     gravity_m_s2 : gravity magnitude subtracted for the linear acceleration, m/s², > 0.
     """
 
-    beta: float = DEFAULT_BETA
-    mag_objective: Literal["forward", "forward_measured", "madgwick", "fixed"] = "forward"
-    use_mag: bool = True
-    integration: Literal["exact", "euler"] = "exact"
-    gravity_m_s2: float = STANDARD_GRAVITY_M_S2
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        beta = float(self.beta)
-        if not (np.isfinite(beta) and beta >= 0.0):
-            raise ValueError(f"beta must be a finite number >= 0 (rad/s), got {self.beta!r}")
-        object.__setattr__(self, "beta", beta)
-        if self.mag_objective not in MAG_OBJECTIVES:
-            raise ValueError(
-                f"mag_objective must be one of {', '.join(MAG_OBJECTIVES)}, "
-                f"got {self.mag_objective!r}"
-            )
-        if not isinstance(self.use_mag, bool | np.bool_):
-            raise ValueError(f"use_mag must be True or False, got {self.use_mag!r}")
-        object.__setattr__(self, "use_mag", bool(self.use_mag))
-        if self.integration not in ("exact", "euler"):
-            raise ValueError(
-                f"integration must be 'exact' or 'euler', got {self.integration!r}"
-            )
-        g = float(self.gravity_m_s2)
-        if not (np.isfinite(g) and g > 0.0):
-            raise ValueError(f"gravity_m_s2 must be a finite number > 0, got {self.gravity_m_s2!r}")
-        object.__setattr__(self, "gravity_m_s2", g)
+    beta: float = param(
+        DEFAULT_BETA,
+        unit="rad/s",
+        ge=0,
+        help="correction step (Madgwick's beta): higher forgets drift faster, admits more "
+        "acceleration; 0 integrates the gyro only",
+    )
+    mag_objective: Literal["forward", "forward_measured", "madgwick", "fixed"] = param(
+        "forward",
+        choices=tuple(MAG_OBJECTIVES),
+        help="magnetometer objective: 004's forward component (heading only), from the "
+        "measured gravity, Madgwick's full vector, or a fixed full-vector reference",
+    )
+    use_mag: bool = param(True, help="use a given magnetometer (False: 6-D, heading free)")
+    integration: Literal["exact", "euler"] = param(
+        "exact",
+        choices=("exact", "euler"),
+        help="gyro step: exact q*exp(w dt/2), or 004's and ahrs's first-order q + q' dt",
+    )
+    gravity_m_s2: float = param(
+        STANDARD_GRAVITY_M_S2,
+        unit="m/s²",
+        gt=0,
+        help="gravity subtracted for the linear-acceleration output",
+    )
 
 
 @dataclass(kw_only=True)
 class GradientState(State):
-    """Orientation and clock (see :class:`State`) plus the newest slow-sensor samples.
+    """Orientation, clock and screening (see :class:`State`) plus the slow-sensor samples.
 
-    acc_held : (S, 3) m/s², the last accelerometer sample processed or received live.
-    mag_held : (S, 3) field unit, the last magnetometer sample (zeros: none yet).
+    acc_held : (S, 3) m/s², the accelerometer sample held for the next live gyro step: the
+        newest one received by ``update_acc`` as received (a non-finite one included: the
+        screening flags it at each step that uses it), or after ``run``/``update`` the last
+        sample processed as screened (zeros: none, or unusable).
+    mag_held : (S, 3) field unit, the same for the magnetometer (zeros: none yet).
     mag_ref : (S, 2) [b_x, b_z], unit field reference of ``mag_objective="fixed"`` in
         north/up components (b_x = 0: not measured yet).
+
+    A restart after a gap keeps all three (they belong to the sensors and the field, not
+    to the orientation): see ``Gradient.kept_on_restart``.
     """
 
     acc_held: Array
@@ -154,10 +170,12 @@ class GradientState(State):
     mag_ref: Array
 
     def copy(self) -> GradientState:
-        """A copy of every array (explicit: deepcopy dominated the cost of one ``update``)."""
+        """A copy of every field, base ones included (explicit: cheaper in ``update``)."""
         return GradientState(
             quat=self.quat.copy(),
             t_last_s=self.t_last_s,
+            ready=None if self.ready is None else self.ready.copy(),
+            screen=None if self.screen is None else self.screen.copy(),
             acc_held=self.acc_held.copy(),
             mag_held=self.mag_held.copy(),
             mag_ref=self.mag_ref.copy(),
@@ -178,8 +196,22 @@ class Gradient(LiveSensors, Estimator[GradientParams, GradientState]):
       ``g · sin(tilt error)`` (0.17 m/s² per degree of inclination error), and any
       accelerometer bias or scale error in full: ``σ² ≈ σ_acc² + (g σ_incl)²`` per
       horizontal axis, ``σ_acc²`` vertically. Noisier than the orientation (004).
-    - ``ignored`` (…, N) int8 bits: ``ACC_IGNORED`` (zero accelerometer: gyro-only step),
-      ``MAG_IGNORED`` (zero magnetometer, or its forward component below 1 % of it).
+      Where the accelerometer was not used (flag ACC_IGNORED) it holds no measurement
+      (``-g · up``): read it with the flags.
+    - ``ignored`` (…, N) int8 bits, method detail (``Estimate.flags`` carries them in the
+      common schema): ``ACC_IGNORED`` (no usable accelerometer: gyro-only step, no
+      magnetometer term either; ``Flag.ACC_IGNORED``), ``MAG_IGNORED`` (accelerometer used,
+      no magnetometer term: zero field or its forward component below 1 % of it),
+      ``MAG_REJECTED`` (a non-zero field the filter itself did not use: forward component
+      vanished, or no accelerometer to go with it; ``Flag.MAG_IGNORED``). A zero field is
+      the screening's sentinel: it has flagged why (``MAG_IGNORED`` or ``MAG_DISTURBED``).
+      A no-op sample (``dt = 0``, neither measurement: a skipped timestamp) has no bits.
+
+    Input policy (:mod:`margtrack.estimator.screening`): the kernel sees screened samples;
+    an unusable accelerometer or magnetometer arrives as the zero vector and only its
+    correction is skipped. After a gap the filter restarts from the TRIAD orientation of
+    the first usable sample (with β as it is: it re-converges within a few seconds), keeping
+    the held samples and the ``fixed`` field reference.
 
     Live use with sensors at different rates: :meth:`update_acc`, :meth:`update_mag`,
     :meth:`update_gyr` (zero-order hold); offline: :func:`align_to_gyro` (interpolation).
@@ -196,6 +228,7 @@ class Gradient(LiveSensors, Estimator[GradientParams, GradientState]):
 
     name = "gradient"
     params_type = GradientParams
+    kept_on_restart = ("acc_held", "mag_held", "mag_ref")
 
     def _new_state(self, quat0: Array) -> GradientState:
         n = quat0.shape[0]
@@ -243,3 +276,13 @@ class Gradient(LiveSensors, Estimator[GradientParams, GradientState]):
             "ignored": flags,
         }
         return quat, outputs
+
+    def _method_flags(self, outputs: Mapping[str, NDArray[Any]]) -> NDArray[np.uint16] | None:
+        """``ignored`` in the flag schema: ``ACC_IGNORED`` → ``Flag.ACC_IGNORED``,
+        ``MAG_REJECTED`` → ``Flag.MAG_IGNORED``.
+
+        A zero field is the screening's sentinel, already flagged with its reason
+        (MAG_IGNORED, or MAG_DISTURBED alone), so the kernel's ``MAG_IGNORED`` bit is not
+        mapped; what the filter adds is the usable field it could not use.
+        """
+        return _SCHEMA[outputs["ignored"]]

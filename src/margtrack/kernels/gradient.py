@@ -13,10 +13,16 @@ from numba import njit
 
 from margtrack.kernels._quat import exp_half, mul
 
-#: ``ignored`` flag bits: no accelerometer correction (zero vector; the sample is gyro-only)
+#: ``ignored`` flag bits: no accelerometer correction (zero vector, the screening's "no
+#: measurement"; the sample is gyro-only, without a magnetometer term either)
 ACC_IGNORED = 1
-#: ... no magnetometer term (zero vector, or its forward component vanishes)
+#: ... the accelerometer was used but no magnetometer term (zero vector, or its forward
+#: component vanishes)
 MAG_IGNORED = 2
+#: ... a non-zero field that the filter itself did not use: its forward component vanished
+#: (with MAG_IGNORED) or there was no accelerometer to go with it (with ACC_IGNORED); the
+#: screening's zero sentinel is not this (it flags those samples itself)
+MAG_REJECTED = 4
 
 # Below this |∇f| the estimate fits the measurements to rounding (|f| ~ 1e-16); the
 # normalised step ∇f/|∇f| would then point in a direction set by rounding noise (and a
@@ -30,6 +36,10 @@ FORWARD_ESTIMATED = 0
 FORWARD_MEASURED = 1
 FULL_ADAPTIVE = 2
 FULL_FIXED = 3
+
+# The field's norm is computed directly inside this range and after scaling by its largest
+# component outside it (where the squares would over- or underflow): any field unit works.
+FIELD_SAFE = (1e-150, 1e150)
 
 # Below this |m_f| / |m| the magnetometer is (almost) parallel to the measured gravity and
 # its forward component no longer defines a horizontal direction (sin of about 0.6 deg).
@@ -152,6 +162,10 @@ def gradient_filter(
     Outputs (S, N, ...): quat (output frame), euler [yaw, pitch, roll] rad, gravity
     component in the body m/s², earth-frame linear acceleration m/s², ``ignored`` flags.
 
+    Screened input (``estimator/screening.py``): an all-zero acc or mag is "no measurement"
+    (that correction is skipped); ``dt = 0`` integrates nothing and makes no correction
+    step (β dt = 0), so a no-op sample leaves the orientation as it was, renormalised.
+
     The recursion runs in NWU (x north, y west, z up), Madgwick's frame: the objective in
     its unit-norm form (``1/2 - q3² - q4²``) is not invariant under a change of earth frame
     off the unit sphere, so the radial part of ∇f, and with it the normalised step
@@ -181,6 +195,13 @@ def gradient_filter(
                 if has_mag:
                     mx, my, mz = mag[s, i, 0], mag[s, i, 1], mag[s, i, 2]
                     nm = math.sqrt(mx * mx + my * my + mz * mz)
+                    if not FIELD_SAFE[0] < nm < FIELD_SAFE[1]:
+                        # squares over- or underflowed (a field unit far from µT): only the
+                        # direction is used, so scale by the largest component first
+                        big = max(abs(mx), abs(my), abs(mz))
+                        if big > 0.0:
+                            mx, my, mz = mx / big, my / big, mz / big
+                            nm = math.sqrt(mx * mx + my * my + mz * mz)
                     use = nm > 0.0
                     dx, dz = 1.0, 0.0
                     if use and mag_mode <= FORWARD_MEASURED:
@@ -215,9 +236,18 @@ def gradient_filter(
                         m0, m1, m2, m3 = gradient_term(w, x, y, z, dx, 0.0, dz, mx, my, mz)
                         g0, g1, g2, g3 = g0 + m0, g1 + m1, g2 + m2, g3 + m3
                     else:
-                        flag |= MAG_IGNORED
+                        flag |= MAG_IGNORED | (MAG_REJECTED if nm > 0.0 else 0)
             else:
-                flag |= ACC_IGNORED
+                # gyro-only step (Madgwick's: no feedback without a valid accelerometer)
+                field = has_mag and (
+                    mag[s, i, 0] != 0.0 or mag[s, i, 1] != 0.0 or mag[s, i, 2] != 0.0
+                )
+                if field:
+                    flag |= ACC_IGNORED | MAG_REJECTED
+                elif h > 0.0:
+                    flag |= ACC_IGNORED
+                # else a no-op sample (dt = 0, no acc, no field: a skipped timestamp): nothing
+                # was there to be used, nothing is flagged
             gn = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2 + g3 * g3)
             if gn > GRADIENT_MIN:
                 g0, g1, g2, g3 = g0 / gn, g1 / gn, g2 / gn, g3 / gn

@@ -14,6 +14,10 @@ def integrate_gyro(quat_state, gyr, dt, quat_out):
     quat_state (S, 4) in/out: orientation before sample 0, replaced by the last one.
     gyr (S, N, 3) rad/s; dt (N,) s (dt[0] = 0 leaves the first output at the state);
     quat_out (S, N, 4) filled. Exact for rates constant over each interval.
+
+    Screened input (``estimator/screening.py``): gyr is finite and within range; a sample
+    with ``dt = 0`` (first sample, gap, skipped timestamp) leaves the orientation exactly
+    as it was (``exp(ω · 0 / 2)`` is the identity).
     """
     n_sensors, n_samples = gyr.shape[0], gyr.shape[1]
     for s in range(n_sensors):

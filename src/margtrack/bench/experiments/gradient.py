@@ -63,6 +63,10 @@ def _rms_deg(x_rad: Array) -> float:
     return float(np.degrees(_rms(x_rad)))
 
 
+#: screening gate wide open (vertical_disturbance shows the objectives, not the gate)
+_NO_GATE = {"mag_norm_tol": 10.0, "mag_dip_tol_deg": 180.0}
+
+
 def vertical_disturbance(out_dir: Path, quick: bool) -> ExperimentResult:
     """Inclination error with and without a vertical field of 50 µT (dip 60 to 76 deg).
 
@@ -85,7 +89,9 @@ def vertical_disturbance(out_dir: Path, quick: bool) -> ExperimentResult:
     series = {}
     for objective in _OBJECTIVES:
         for label, rec in (("undisturbed", plain), ("disturbed", disturbed)):
-            est = Gradient(mag_objective=objective).run(rec)
+            # the objective's own immunity: the screening's norm/dip gate, which would
+            # reject this field (+90 % norm, +16 deg dip) for 20 s, is opened wide
+            est = Gradient(mag_objective=objective, **_NO_GATE).run(rec)
             err = error_series(est.quat, rec.quat_true)
             series[objective, label] = err
             figures[f"{objective}_inclination_rmse_{label}_deg"] = _rms_deg(
