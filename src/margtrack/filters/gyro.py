@@ -14,13 +14,10 @@ is measured again from the first usable sample, as at the start (a ``q0`` given 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
-import numpy as np
-from numpy.typing import NDArray
-
-from margtrack.estimator import Estimator, Params, State
-from margtrack.kernels.gyro import integrate_gyro
+from margtrack.estimator import Params
+from margtrack.estimator.compiled import CompiledEstimator
+from margtrack.kernels import gyro as kernel
 
 __all__ = ["GyroIntegration", "GyroParams"]
 
@@ -31,7 +28,7 @@ class GyroParams(Params):
     (output ``frame`` and the input policy: sensor ranges, ``max_gap_s``, strict mode)."""
 
 
-class GyroIntegration(Estimator[GyroParams, State]):
+class GyroIntegration(CompiledEstimator[GyroParams]):
     """Orientation by integrating the gyroscope alone (``--method gyro``).
 
     The accelerometer and magnetometer, when given, are used only to set the initial
@@ -40,19 +37,4 @@ class GyroIntegration(Estimator[GyroParams, State]):
 
     name = "gyro"
     params_type = GyroParams
-
-    def _new_state(self, quat0: NDArray[np.float64]) -> State:
-        return State(quat=np.array(quat0, dtype=np.float64))
-
-    def _process(
-        self,
-        state: State,
-        gyr: NDArray[np.float64] | None,
-        acc: NDArray[np.float64],
-        mag: NDArray[np.float64] | None,
-        dt: NDArray[np.float64],
-    ) -> tuple[NDArray[np.float64], dict[str, NDArray[Any]]]:
-        assert gyr is not None  # guaranteed by uses_gyr; narrows the type
-        out = np.empty((gyr.shape[0], gyr.shape[1], 4))
-        integrate_gyro(state.quat, gyr, dt, out)
-        return out, {}
+    kernel = kernel

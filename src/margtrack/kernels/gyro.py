@@ -1,32 +1,62 @@
-"""Kernel of plain gyroscope integration (the baseline estimator)."""
+"""Kernel of plain gyroscope integration (the baseline estimator), on ``kernels/contract.py``.
+
+Row layout after the contract's slots: ``G_Q`` (4) the integrated orientation. No extra
+outputs, no parameters of its own.
+"""
 
 from __future__ import annotations
 
 from numba import njit
 
+from margtrack.kernels import contract
 from margtrack.kernels._quat import exp_half, mul
+
+G_Q = contract.N_CONTRACT  # 4: orientation, body to earth
+N_ROW = G_Q + 4
+
+
+@njit(cache=True, inline="always")
+def _start(row, coef, first, qw, qx, qy, qz):
+    row[G_Q], row[G_Q + 1], row[G_Q + 2], row[G_Q + 3] = qw, qx, qy, qz
+
+
+@njit(cache=True, inline="always")
+def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
+    """``q_i = q_{i-1} ⊗ exp(ω_i dt_i / 2)``: exact for a rate constant over the interval;
+    ``dt = 0`` leaves q as it was (exp of zero is the identity)."""
+    dw, dx, dy, dz = exp_half(g0, g1, g2, dt)
+    w, x, y, z = mul(row[G_Q], row[G_Q + 1], row[G_Q + 2], row[G_Q + 3], dw, dx, dy, dz)
+    row[G_Q], row[G_Q + 1], row[G_Q + 2], row[G_Q + 3] = w, x, y, z
+    q_out[0], q_out[1], q_out[2], q_out[3] = w, x, y, z
+    return 0
+
+
+@njit(cache=True, inline="always")
+def _hold(row, coef, x_out):
+    pass
 
 
 @njit(cache=True)
-def integrate_gyro(quat_state, gyr, dt, quat_out):
-    """Integrate body rates for S sensors: ``q_i = q_{i-1} ⊗ exp(ω_i dt_i / 2)``.
+def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """S sensors' N samples (``contract.run_series``)."""
+    contract.run_series(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
+                        q_out, x_out, flags_out)
 
-    quat_state (S, 4) in/out: orientation before sample 0, replaced by the last one.
-    gyr (S, N, 3) rad/s; dt (N,) s (dt[0] = 0 leaves the first output at the state);
-    quat_out (S, N, 4) filled. Exact for rates constant over each interval.
 
-    Screened input (``estimator/screening.py``): gyr is finite and within range; a sample
-    with ``dt = 0`` (first sample, gap, skipped timestamp) leaves the orientation exactly
-    as it was (``exp(ω · 0 / 2)`` is the identity).
-    """
-    n_sensors, n_samples = gyr.shape[0], gyr.shape[1]
-    for s in range(n_sensors):
-        w, x, y, z = quat_state[s, 0], quat_state[s, 1], quat_state[s, 2], quat_state[s, 3]
-        for i in range(n_samples):
-            dw, dx, dy, dz = exp_half(gyr[s, i, 0], gyr[s, i, 1], gyr[s, i, 2], dt[i])
-            w, x, y, z = mul(w, x, y, z, dw, dx, dy, dz)
-            quat_out[s, i, 0] = w
-            quat_out[s, i, 1] = x
-            quat_out[s, i, 2] = y
-            quat_out[s, i, 3] = z
-        quat_state[s, 0], quat_state[s, 1], quat_state[s, 2], quat_state[s, 3] = w, x, y, z
+@njit(cache=True)
+def update(rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """One sample of S sensors (``contract.update_samples``)."""
+    contract.update_samples(_start, _step, _hold, rows, clock, coefs, dt, gyr, acc, mag, has,
+                            q_out, x_out, flags_out)
+
+
+@njit(cache=True)
+def update_one(rows, clock, coefs, dt, g, a, m, has, out):
+    """One sample of one sensor (``contract.update_one``); returns the flags."""
+    return contract.update_one(_start, _step, _hold, rows, clock, coefs, dt, g, a, m, has, out)
+
+
+@njit(cache=True)
+def start(rows, coefs, quat0):
+    """Start S sensors at quat0 (S, 4) (``contract.start_rows``)."""
+    contract.start_rows(_start, rows, coefs, quat0)

@@ -70,14 +70,14 @@ ABSURD = 10.0
 
 @njit(cache=True)
 def fresh(sc):
-    """A screening state that has seen nothing: (N_SCREEN,) or (S, N_SCREEN) in place."""
-    sc[...] = 0.0
-    flat = sc.reshape(-1, N_SCREEN)
-    for s in range(flat.shape[0]):
+    """Screening states that have seen nothing: sc (S, N_SCREEN), in place."""
+    for s in range(sc.shape[0]):
+        for k in range(N_SCREEN):
+            sc[s, k] = 0.0
         for k in range(3):
-            flat[s, S_MAG_PREV + k] = math.nan
-        flat[s, S_REF + R_DIP] = math.nan
-        flat[s, S_REF + R_CAND_DIP] = math.nan
+            sc[s, S_MAG_PREV + k] = math.nan
+        sc[s, S_REF + R_DIP] = math.nan
+        sc[s, S_REF + R_CAND_DIP] = math.nan
 
 
 @njit(cache=True, inline="always")

@@ -1,0 +1,293 @@
+"""Methods whose whole per-sample path is compiled: one call per ``update``, one per ``run``.
+
+A :class:`CompiledEstimator` keeps each sensor's state as one flat row (the contract's
+slots, ``kernels/contract.py``, then the method's own, named by ``state_layout``) and a
+shared clock. Its kernel module provides four ``@njit`` entry points built on
+``kernels/contract.py`` (``run``, ``update`` for S sensors, ``update_one`` for one,
+``start``), so the screening,
+the (re)starts and the method's step are one compiled call, and ``update`` repeated N
+times equals ``run`` once (the same inline sample function). ``coefs`` is the screening's
+coefficients followed by the method's (:meth:`CompiledEstimator._coefficients`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from margtrack import quaternion as quat
+from margtrack.estimator import screening
+from margtrack.estimator.contract import Estimate, Estimator
+from margtrack.estimator.flags import first_problem
+from margtrack.estimator.params import Params
+from margtrack.estimator.units import UnitProbe, check_series_units
+from margtrack.kernels import contract as kc
+
+Array = NDArray[np.float64]
+
+__all__ = ["CompiledEstimator", "CompiledState"]
+
+
+@dataclass
+class CompiledState:
+    """State of S sensors of a compiled method: ``rows`` (S, R) and the ``clock`` (1,).
+
+    The first ``N_CONTRACT`` slots of a row are the contract's (started flag, number of
+    starts, last output, screening state); the method's own follow, named by its
+    ``layout`` (name -> (offset, width) within the row). Read them with :meth:`get`.
+    """
+
+    rows: Array
+    clock: Array
+    layout: Mapping[str, tuple[int, int]] = dataclasses.field(default_factory=dict)
+
+    def copy(self) -> CompiledState:
+        """An independent copy."""
+        return CompiledState(self.rows.copy(), self.clock.copy(), self.layout)
+
+    @property
+    def quat(self) -> Array:
+        """(S, 4) the last output orientation."""
+        return self.rows[:, kc.K_Q : kc.K_Q + 4].copy()
+
+    @property
+    def t_last_s(self) -> float:
+        """Time of the last accepted sample, s (nan before the first)."""
+        return float(self.clock[0])
+
+    @property
+    def ready(self) -> NDArray[np.bool_]:
+        """(S,) whether each sensor has started (since the start or the last gap)."""
+        return self.rows[:, kc.K_READY] > 0.0
+
+    @property
+    def screen(self) -> screening.ScreenState:
+        """The screening state (a copy)."""
+        return screening.ScreenState(
+            packed=self.rows[:, kc.K_SCREEN : kc.K_SCREEN + screening.kernel.N_SCREEN].copy()
+        )
+
+    def get(self, name: str) -> Array:
+        """(S, width) a copy of the named part of the method's state."""
+        offset, width = self.layout[name]
+        return self.rows[:, offset : offset + width].copy()
+
+    def gyr_bias_rad_s(self) -> Array | None:
+        """(S, 3) the gyro bias estimate, rad/s, if the method has one."""
+        return self.get("gyr_bias_rad_s") if "gyr_bias_rad_s" in self.layout else None
+
+    def gyr_bias_sd_rad_s(self) -> Array | None:
+        """(S, 3) its standard deviation, rad/s, if the method knows it."""
+        return self.get("gyr_bias_sd_rad_s") if "gyr_bias_sd_rad_s" in self.layout else None
+
+
+P = TypeVar("P", bound=Params)
+
+
+class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
+    """Base of the methods with a compiled per-sample path (module docstring).
+
+    Subclasses set ``kernel`` (the module with ``run``, ``update``, ``update_one``,
+    ``start`` and ``N_ROW``), ``state_layout`` (the method's named row slots), ``outputs_layout``
+    (names and widths of the per-sample extra outputs) and implement
+    :meth:`_coefficients` (the kernel's coefficient vector from the parameters).
+    """
+
+    kernel: ClassVar[ModuleType]
+    state_layout: ClassVar[Mapping[str, tuple[int, int]]] = {}
+    outputs_layout: ClassVar[tuple[tuple[str, int], ...]] = ()
+
+    def __init__(
+        self, params: P | None = None, *, rate_hz: float | None = None, **param_values: Any
+    ) -> None:
+        super().__init__(params, rate_hz=rate_hz, **param_values)
+        self._buffers: tuple[Array, Array, NDArray[np.uint16]] | None = None
+        self._has_gyr_bit = 2 if self.uses_gyr else 0
+        self._derive()
+
+    # -- coefficients, computed once per parameter change -----------------------------------
+    def _coefficients(self) -> Array:
+        """The kernel's coefficient vector (SI units) from ``self.params``."""
+        return np.zeros(1)
+
+    def _derive(self) -> None:
+        screen_part = np.zeros(kc.N_SCOEF)
+        screen_part[: screening.kernel.N_COEF] = self._screen_coef
+        screen_part[kc.C_NED] = 1.0 if self._params.frame == "NED" else 0.0
+        screen_part[kc.C_MAG_REQUIRED] = 0.0 if self.mag_optional else 1.0
+        own = np.asarray(self._coefficients(), dtype=np.float64).ravel()
+        self._coefs = np.ascontiguousarray(np.concatenate([screen_part, own]))
+        self._dt_default = None if self.rate_hz is None else 1.0 / self.rate_hz
+        width = sum(w for _, w in self.outputs_layout)
+        self._out_one = np.zeros(4 + max(width, 1))
+        self._flags_one = np.zeros(1, dtype=np.uint16)
+
+    @Estimator.params.setter  # type: ignore[attr-defined]
+    def params(self, value: P) -> None:
+        Estimator.params.fset(self, value)  # type: ignore[attr-defined]
+        self._derive()
+
+    # -- state ----------------------------------------------------------------------------
+    def _new_rows(self, n_sensors: int) -> CompiledState:
+        rows = np.zeros((n_sensors, self.kernel.N_ROW))
+        rows[:, kc.K_Q] = 1.0
+        screening.kernel.fresh(rows[:, kc.K_SCREEN : kc.K_SCREEN + screening.kernel.N_SCREEN])
+        return CompiledState(rows, np.array([np.nan]), self.state_layout)
+
+    def _new_state(self, quat0: Array) -> CompiledState:
+        state = self._new_rows(quat0.shape[0])
+        self.kernel.start(state.rows, self._coefs, np.ascontiguousarray(quat0))
+        return state
+
+    def _process(self, *args: Any) -> Any:  # pragma: no cover - the compiled path replaces it
+        raise TypeError(f"{type(self).__name__} runs through its compiled kernel")
+
+    def reset(self, q0: ArrayLike | None = None) -> None:
+        """Forget the state; with ``q0`` ((4,) or (S, 4)) start from that orientation."""
+        self._probe = UnitProbe()
+        self._last_flags = None
+        self._buffers = None
+        if q0 is None:
+            self._state = None
+            return
+        q = quat.normalize(np.asarray(q0, dtype=np.float64).reshape(-1, 4))
+        self._state = self._new_state(q)
+
+    # -- entry points ------------------------------------------------------------------------
+    def update(
+        self,
+        gyr: ArrayLike | None,
+        acc: ArrayLike,
+        mag: ArrayLike | None = None,
+        dt: float | None = None,
+    ) -> Array:
+        """Process one sample ((3,), or (S, 3) for S sensors); return the orientation.
+
+        ``dt`` is the time since the previous sample in s (default ``1 / rate_hz``). The
+        sample is screened like any other (:attr:`flags` says what was done); over the
+        first samples the units are checked. One sensor's sample after the first ones
+        takes one compiled call (the lean path).
+        """
+        state = self._state
+        a = np.asarray(acc, dtype=np.float64)
+        if state is not None and self._probe.done and a.shape == (3,) and len(state.rows) == 1:
+            g = a if gyr is None else np.asarray(gyr, dtype=np.float64)
+            m = a if mag is None else np.asarray(mag, dtype=np.float64)
+            if g.shape == (3,) and m.shape == (3,):
+                if dt is None:
+                    dt = self._dt_default
+                    if dt is None:
+                        raise ValueError("update() needs dt (s) or an estimator built with rate_hz")
+                has = (mag is not None) | (self._has_gyr_bit if gyr is not None else 0)
+                out = self._out_one
+                self._flags_one[0] = self.kernel.update_one(
+                    state.rows, state.clock, self._coefs, dt, g, a, m, has, out
+                )
+                self._last_flags = self._flags_one
+                return out[:4].copy()
+        return self._update_general(gyr, a, mag, dt)
+
+    def _update_general(
+        self, gyr: ArrayLike | None, acc: Array, mag: ArrayLike | None, dt: float | None
+    ) -> Array:
+        """:meth:`update` for S sensors, the first samples (unit check) and odd shapes."""
+        one = acc.ndim == 1
+        a = acc.reshape(-1, 3)
+        g = a if gyr is None else np.asarray(gyr, dtype=np.float64).reshape(-1, 3)
+        m = a if mag is None else np.asarray(mag, dtype=np.float64).reshape(-1, 3)
+        state = self._state
+        if state is None:
+            if self.uses_gyr and gyr is None:
+                raise ValueError(f"method {self.name!r} needs gyroscope data (gyr)")
+            if mag is None and not self.mag_optional:
+                raise ValueError(f"method {self.name!r} needs a magnetometer (mag)")
+            state = self._state = self._new_rows(a.shape[0])
+        n_sensors = state.rows.shape[0]
+        if a.shape[0] != n_sensors or g.shape != a.shape or m.shape != a.shape:
+            raise ValueError(
+                f"update() takes gyr, acc, mag of shape (3,) or (S, 3) for the S = {n_sensors} "
+                f"sensor(s) the state holds; got {np.shape(gyr)}, {np.shape(acc)}, "
+                f"{np.shape(mag)} (reset() first to change the number of sensors)"
+            )
+        if dt is None:
+            if np.isfinite(state.clock[0]):
+                if self._dt_default is None:
+                    raise ValueError("update() needs dt (s) or an estimator built with rate_hz")
+                dt = self._dt_default
+            else:
+                dt = 0.0
+        if not self._probe.done:
+            self._probe.add(g[:, None] if self.uses_gyr else None, a[:, None])
+        buffers = self._buffers
+        if buffers is None or buffers[0].shape[0] != n_sensors:
+            width = sum(w for _, w in self.outputs_layout)
+            buffers = self._buffers = (
+                np.empty((n_sensors, 4)),
+                np.empty((n_sensors, max(width, 1))),
+                np.empty(n_sensors, dtype=np.uint16),
+            )
+        q_out, x_out, flags = buffers
+        has = (mag is not None) | (self._has_gyr_bit if gyr is not None else 0)
+        self.kernel.update(
+            state.rows, state.clock, self._coefs, float(dt), g, a, m, has, q_out, x_out, flags
+        )
+        self._last_flags = flags
+        return q_out[0].copy() if one else q_out.copy()
+
+    def _run_arrays(
+        self,
+        gyr: ArrayLike | None,
+        acc: ArrayLike,
+        mag: ArrayLike | None,
+        t: Array,
+        *,
+        check_units: bool,
+    ) -> Estimate:
+        x = self._validated(gyr, acc, mag, t)
+        if check_units:
+            for s in range(x.acc.shape[0]):
+                check_series_units(None if x.gyr is None else x.gyr[s], x.acc[s], path="arrays")
+        n_sensors, n = x.acc.shape[0], x.acc.shape[1]
+        state = self._state
+        if state is not None and state.rows.shape[0] != n_sensors:
+            raise ValueError(
+                f"the state holds {state.rows.shape[0]} sensor(s) but the data has {n_sensors}; "
+                "reset() first"
+            )
+        work = self._new_rows(n_sensors) if state is None else state.copy()
+        width = sum(w for _, w in self.outputs_layout)
+        q = np.empty((n_sensors, n, 4))
+        extra = np.empty((n_sensors, n, max(width, 1)))
+        flags = np.empty((n_sensors, n), dtype=np.uint16)
+        has = (x.mag is not None) | (self._has_gyr_bit if x.gyr is not None else 0)
+        self.kernel.run(
+            work.rows, work.clock, self._coefs, np.ascontiguousarray(x.t),
+            x.acc if x.gyr is None else x.gyr, x.acc, x.acc if x.mag is None else x.mag,
+            has, q, extra, flags,
+        )
+        if self._params.strict:
+            problem = first_problem(flags)
+            if problem is not None:
+                raise ValueError(f"{problem} (strict=True; strict=False flags and skips it)")
+        self._state = work
+        self._last_flags = flags[:, -1].copy()
+        outputs: dict[str, NDArray[Any]] = {}
+        offset = 0
+        for name, w in self.outputs_layout:
+            outputs[name] = extra[:, :, offset : offset + w]
+            offset += w
+        return Estimate(
+            quat=q,
+            t=x.t.copy(),
+            frame=self._params.frame,
+            method=self.name,
+            params=dict(self._params_dict),
+            outputs=outputs,
+            flags=flags,
+        )
