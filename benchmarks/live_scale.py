@@ -41,9 +41,9 @@ BASE_PEOPLE = 8
 
 
 def params(method: str) -> dict[str, float]:
-    """Bachmann's filter is given the simulated dip: measuring it on the first sample fails
-    for a sensor whose first sample is taken in motion (acceleration nearly along the field)."""
-    return {"dip_deg": DEFAULT_DIP_DEG} if methods.get(method).name == "bachmann" else {}
+    """Bachmann's filter is given the simulated dip as its reference (as a calibration
+    would): measured from a first sample taken in motion it would be off."""
+    return {"mag_dip_ref_deg": DEFAULT_DIP_DEG} if methods.get(method).name == "bachmann" else {}
 
 
 def base_signals() -> tuple[np.ndarray, ...]:

@@ -8,6 +8,7 @@ import pytest
 from margtrack import frames, sim
 from margtrack import quaternion as quat
 from margtrack.bench.metrics import error_series
+from margtrack.estimator import Flag
 from margtrack.filters.complementary import Bachmann, BachmannAccMag, BachmannParams
 
 pytestmark = pytest.mark.kernel
@@ -88,7 +89,7 @@ def test_tracks_the_simulated_truth_in_both_frames_without_conjugation(frame):
     motion = sim.random_motion(20.0, rate_hz, seed=3, max_rate_deg_s=200.0)
     noise = sim.SensorErrors(noise_density=np.radians(0.005))
     rec = sim.simulate(motion, frame=frame, gyr_errors=noise, seed=1)
-    est = Bachmann(gain=1.0, dip_deg=sim.DEFAULT_DIP_DEG, frame=frame).run(rec)
+    est = Bachmann(gain=1.0, mag_dip_ref_deg=sim.DEFAULT_DIP_DEG, frame=frame).run(rec)
     assert est.frame == frame
     error_deg = np.degrees(quat.angle_between(est.quat, rec.quat_true))
     # exact acc/mag, a white-noise gyro: what is left is the lag of Fig. 5's order (q̂ of
@@ -103,7 +104,7 @@ def test_tracks_the_simulated_truth_in_both_frames_without_conjugation(frame):
 @pytest.mark.parametrize("gain", [2.0, 8.0])
 def test_squared_error_falls_to_37_percent_at_one_over_2k(gain):
     rec = sim.simulate(sim.static(1.0, 1000.0, q0=Q_TRUE), dip_deg=60.0)
-    est = Bachmann(gain=gain, mag_weight=1.0, dip_deg=60.0)  # ρ < 1 slows the heading
+    est = Bachmann(gain=gain, mag_weight=1.0, mag_dip_ref_deg=60.0)  # ρ < 1 slows heading
     est.reset(quat.multiply(Q_TRUE, quat.from_axis_angle([1, 1, 1], np.radians(30.0))))
     out = est.run(rec)
     squared = quat.angle_between(out.quat, rec.quat_true) ** 2
@@ -127,7 +128,7 @@ def test_without_magnetometer_tilt_converges_and_heading_is_left_alone():
 
 def test_acc_mag_only_needs_no_gyro_and_follows_the_measurements():
     rec = sim.simulate(sim.static(2.0, 200.0, q0=Q_TRUE), dip_deg=60.0)
-    est = BachmannAccMag(gain=5.0, mag_weight=1.0, dip_deg=60.0)
+    est = BachmannAccMag(gain=5.0, mag_weight=1.0, mag_dip_ref_deg=60.0)
     est.reset(quat.identity())
     out = est.run(acc=rec.acc, mag=rec.mag, t=rec.t)  # no gyr at all
     assert np.degrees(quat.angle_between(out.quat[-1], Q_TRUE)) < 1e-2
@@ -141,9 +142,11 @@ def test_degenerate_samples_are_flagged_not_turned_into_nan():
     gyr, acc, mag = (x[0] for x in _signals(1, 30))
     acc[10] = 0.0
     mag[20] = 0.0
-    out = Bachmann(gain=2.0).run(gyr=gyr, acc=acc, mag=mag, rate_hz=100.0)
+    gate_open = {"mag_norm_tol": 1e9, "mag_dip_tol_deg": 360.0}  # noisy field: no other zeros
+    out = Bachmann(gain=2.0, **gate_open).run(gyr=gyr, acc=acc, mag=mag, rate_hz=100.0)
     flags = out.outputs["degenerate"]
     assert flags[10] == 1 and flags[20] == 2 and np.count_nonzero(flags) == 2
+    assert out.flags[10] & Flag.ACC_IGNORED and out.flags[20] & Flag.MAG_IGNORED
     assert np.all(np.isfinite(out.quat))
     np.testing.assert_array_equal(out.outputs["correction_rad_s"][10], 0.0)
     assert np.isnan(out.outputs["phi"][10])
@@ -155,16 +158,17 @@ def test_degenerate_samples_are_flagged_not_turned_into_nan():
 @pytest.mark.parametrize(
     ("values", "message"),
     [
-        ({"gain": -1.0}, r"gain must be >= 0 \(1/s\)"),
-        ({"gain": float("nan")}, "gain must be >= 0"),
-        ({"mag_weight": -0.1}, "mag_weight must be >= 0"),
-        ({"correction_interval": 0}, "correction_interval must be an integer >= 1"),
-        ({"correction_interval": 2.5}, "correction_interval must be an integer >= 1"),
-        ({"round_robin": "yes"}, "round_robin must be True or False"),
-        ({"dip_deg": 88.0}, r"dip_deg must be in \[-85, 85\] deg"),
-        ({"dip_deg": 60.0, "mag_reference": (0, 1, 0)}, "dip_deg or mag_reference, not both"),
+        ({"gain": -1.0}, r"parameter gain must be a finite number, >= 0 1/s"),
+        ({"gain": float("nan")}, "parameter gain must be a finite number"),
+        ({"mag_weight": -0.1}, "parameter mag_weight must be a finite number, >= 0"),
+        ({"correction_interval": 0}, "parameter correction_interval must be .* >= 1"),
+        ({"correction_interval": 2.5}, "parameter correction_interval must be a whole number"),
+        ({"round_robin": "yes"}, "parameter round_robin must be"),
+        ({"restart_gain": -1.0}, "parameter restart_gain must be a finite number, >= 0"),
+        ({"mag_dip_ref_deg": 88.0}, "at least 5.0 deg away .* mag_dip_ref_deg"),
         ({"mag_reference": (0, 0.01, 1)}, "at least 5.0 deg away"),
         ({"gravity_reference": (0, 0, 0)}, "gravity_reference must be a finite, non-zero"),
+        ({"mag_reference": (1.0, 2.0)}, "mag_reference must be a finite, non-zero 3-vector"),
         ({"frame": "NWU"}, "frame must be 'NED' or 'ENU'"),
     ],
 )
@@ -175,31 +179,56 @@ def test_bad_parameters_are_refused_with_the_allowed_range(values, message):
         Bachmann().set_params(**values)
 
 
-def test_the_dip_is_measured_from_the_first_sample_or_the_failure_says_what_to_do():
+def test_the_dip_is_measured_at_the_first_usable_sample_and_never_refuses_a_sensor():
     rec = sim.simulate(sim.static(0.5, 100.0, q0=Q_TRUE), dip_deg=63.0)
     est = Bachmann()
     est.run(rec)
     assert np.degrees(est.state.dip_rad[0]) == pytest.approx(63.0, abs=1e-9)
+    # a zero (screened) field at the start: the dip comes from the first usable sample
     mag = rec.mag.copy()
-    mag[0] = 0.0
+    mag[:7] = 0.0
     est = Bachmann()
     est.reset(Q_TRUE)
-    with pytest.raises(ValueError, match=r"sensor 0 .* give dip_deg or mag_reference"):
-        est.run(gyr=rec.gyr, acc=rec.acc, mag=mag, t=rec.t)
+    out = est.run(gyr=rec.gyr, acc=rec.acc, mag=mag, t=rec.t)
+    assert np.degrees(est.state.dip_rad[0]) == pytest.approx(63.0, abs=1e-9)
+    assert np.all(out.outputs["degenerate"][:7] == 2) and not out.outputs["degenerate"][7:].any()
+    assert np.max(quat.angle_between(out.quat, Q_TRUE)) < 1e-9
+    # a field within 5 deg of vertical is taken at the limit, not refused
+    steep = sim.simulate(sim.static(0.2, 100.0, q0=Q_TRUE), dip_deg=88.0)
+    est = Bachmann()
+    assert np.all(np.isfinite(est.run(steep).quat))
+    assert np.degrees(est.state.dip_rad[0]) == pytest.approx(85.0, abs=1e-9)
+
+
+def test_the_base_reference_dip_is_the_field_reference_and_mag_reference_wins():
+    gyr, acc, mag = (x[0] for x in _signals(1, 60))
+    gate_open = {"mag_norm_tol": 1e9, "mag_dip_tol_deg": 360.0}
+    a = Bachmann(mag_dip_ref_deg=40.0, **gate_open).run(gyr=gyr, acc=acc, mag=mag, rate_hz=100.0)
+    b = Bachmann(mag_dip_ref_deg=70.0, **gate_open).run(gyr=gyr, acc=acc, mag=mag, rate_hz=100.0)
+    assert quat.angle_between(a.quat[-1], b.quat[-1]) > 1e-3  # the dip is used
+    given = tuple(frames.mag_reference("ENU", 40.0))
+    c = Bachmann(mag_dip_ref_deg=70.0, mag_reference=given, **gate_open).run(
+        gyr=gyr, acc=acc, mag=mag, rate_hz=100.0
+    )
+    np.testing.assert_allclose(c.quat, a.quat, atol=1e-15)
 
 
 def test_explicit_reference_vectors_equal_the_frame_and_dip_ones_and_state_copies_are_deep():
     gyr, acc, mag = (x[0] for x in _signals(1, 60))
-    by_dip = Bachmann(dip_deg=55.0, frame="NED")
+    gate_open = {"mag_norm_tol": 1e9, "mag_dip_tol_deg": 360.0}  # the same screening
+    by_dip = Bachmann(mag_dip_ref_deg=55.0, frame="NED", **gate_open)
     given = Bachmann(
         gravity_reference=(0.0, 0.0, -9.81),  # a level accelerometer reads up: -z in NED
         mag_reference=tuple(frames.mag_reference("NED", 55.0, 48.0)),
         frame="NED",
+        **gate_open,
     )
     a = by_dip.run(gyr=gyr, acc=acc, mag=mag, rate_hz=100.0)
     b = given.run(gyr=gyr, acc=acc, mag=mag, rate_hz=100.0)
     np.testing.assert_allclose(a.quat, b.quat, atol=1e-15)
-    tilted = Bachmann(dip_deg=55.0, frame="NED", gravity_reference=(0.1, 0.0, -1.0))
+    tilted = Bachmann(
+        mag_dip_ref_deg=55.0, frame="NED", gravity_reference=(0.1, 0.0, -1.0), **gate_open
+    )
     c = tilted.run(gyr=gyr, acc=acc, mag=mag, rate_hz=100.0)
     assert quat.angle_between(a.quat[-1], c.quat[-1]) > 1e-3  # the reference is used
     saved = by_dip.state

@@ -206,7 +206,7 @@ def test_one_step_equals_the_textbook_ekf_equations():
     acc = 9.81 * quat.rotate_inverse(q_true, up) + [0.1, -0.2, 0.05]
     mag = 50.0 * quat.rotate_inverse(q_true, field) + [0.5, 0.2, -0.4]
     noise = {"rate": np.array([2.0, 1.0, 3.0]), "gyr": np.array([1e-4, 2e-4, 1e-4]),
-             "quat": 1e-4, "acc": 0.01, "mag": 0.5}
+             "quat": 1e-4, "acc": 0.01, "mag": 0.5 / 50.0**2}  # mag: relative to the norm
     h = 0.01
     xp, f, g = _transition(x0, h)
     qn = np.empty((7, 7))
@@ -236,7 +236,7 @@ def test_one_step_equals_the_textbook_ekf_equations():
                                           quat.rotate_inverse(minus, field)]) / 2e-7
             innov = np.r_[gyr - xp[:3], np.r_[ua, um] - pred]
             r = np.r_[noise["gyr"] / h, np.full(3, noise["acc"] / h / 9.81**2),
-                      np.full(3, noise["mag"] / h / np.sum(mag**2))]
+                      np.full(3, noise["mag"] / h)]
         s = hm @ pp @ hm.T + np.diag(r)
         gain = pp @ hm.T @ np.linalg.inv(s)
         x = xp + gain @ innov

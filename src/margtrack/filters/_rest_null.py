@@ -15,6 +15,11 @@ recording, online and causally:
 - at the first moving sample the mean is frozen and used from then on, unless the still
   start lasted less than ``min_rest_s``, in which case no null is used.
 
+The null is calibration, not orientation: a filter restarting after a gap keeps it (and,
+if the still start was still being measured, goes on measuring it). Screened samples
+(``margtrack.estimator.screening``) with a zero accelerometer or magnetometer vector say
+nothing about the direction: they neither extend nor end the still start by that signal.
+
 Give a calibrated gyroscope instead (``margtrack run --calibration``) and switch this off
 with ``min_rest_s = 0``. Limitation: a rotation that is already under way at the first
 sample at a constant rate (no gyro change) is only told from a bias by the turning
@@ -42,6 +47,9 @@ ACC_TOLERANCE_DEG = 2.0
 #: Largest change of the magnetometer direction while still, deg: BROAD's magnetometers
 #: scatter by 3-5 deg from sample to sample at rest.
 MAG_TOLERANCE_DEG = 10.0
+#: A rate beyond this (rad/s, any axis) is no sensor's: such a sample is left out of the
+#: null (the screening replaces it before; this keeps the kernel finite on its own).
+MAX_RATE_RAD_S = 1e6
 
 
 @dataclass
@@ -81,6 +89,14 @@ class RestNullState:
         )  # fmt: skip
 
 
+def rest_null_rad_s(state: RestNullState, n_sensors: int) -> Array:
+    """(S, 3) the null the state currently subtracts, rad/s (0 where none)."""
+    if state.count.shape != (n_sensors,):
+        return np.zeros((n_sensors, 3))
+    count = np.maximum(state.count, 1)[:, None]
+    return np.where(state.count[:, None] > 0, state.total_rad_s / count, 0.0)
+
+
 def subtract_rest_null(
     state: RestNullState,
     gyr: Array,
@@ -113,6 +129,6 @@ def subtract_rest_null(
         state.total_rad_s, state.count, state.duration_s, state.acc_sum, state.mag_sum,
         state.still, float(min_rest_s), np.radians(GYR_TOLERANCE_DEG_S),
         np.cos(np.radians(ACC_TOLERANCE_DEG)), np.cos(np.radians(MAG_TOLERANCE_DEG)),
-        out, null,
+        MAX_RATE_RAD_S, out, null,
     )  # fmt: skip
     return out, null

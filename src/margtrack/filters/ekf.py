@@ -37,7 +37,6 @@ Two properties of the model as 001 writes it:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -45,9 +44,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from margtrack import frames
-from margtrack.estimators.base import Estimator, Params, State
-from margtrack.estimators.prefilter import check_dip_deg, dip_rad_or_nan
-from margtrack.filters._rest_null import RestNullState, subtract_rest_null
+from margtrack.estimator import Estimator, Flag, Params, State, param
+from margtrack.estimators.prefilter import dip_rad_or_nan
+from margtrack.filters._rest_null import RestNullState, rest_null_rad_s, subtract_rest_null
 from margtrack.frames import STANDARD_GRAVITY_M_S2
 from margtrack.kernels import ekf as kernel
 
@@ -56,24 +55,7 @@ PerAxis = float | tuple[float, float, float]
 
 __all__ = ["MarinsEkf", "MarinsEkfParams", "MarinsEkfState", "initial_covariance"]
 
-
-def _per_axis(value: PerAxis, name: str) -> float | tuple[float, ...]:
-    """A positive finite number, or three of them (x, y, z body axes)."""
-    arr = None if isinstance(value, (str, bool)) else np.asarray(value, dtype=np.float64)
-    ok = arr is not None and arr.shape in ((), (3,)) and bool(np.all(np.isfinite(arr)))
-    if not (ok and bool(np.all(arr > 0.0))):
-        raise ValueError(
-            f"{name} must be a finite number > 0 (or three of them, one per body axis), "
-            f"got {value!r}"
-        )
-    return float(arr) if arr.ndim == 0 else tuple(float(v) for v in arr)
-
-
-def _positive(value: float, name: str, high: float = math.inf) -> float:
-    x = float(value) if not isinstance(value, (str, bool)) else math.nan
-    if not (math.isfinite(x) and 0.0 < x <= high):
-        raise ValueError(f"{name} must be a finite number in (0, {high:g}], got {value!r}")
-    return x
+_PER_AXIS = ("tau_s", "rate_noise_rad_s_sqrt_hz", "gyr_noise_rad_s_sqrt_hz")
 
 
 @dataclass(frozen=True)
@@ -97,90 +79,117 @@ class MarinsEkfParams(Params):
     RMSE 4.65 deg (heading 2.63, inclination 3.53); ahrs's Madgwick with one tuned β:
     4.88 deg. Without the null (``gyr_null_rest_s=0``) the best was 5.70 deg at
     ``quat_noise_per_sqrt_hz = 0.022``: a gyro bias is signal to this model, so it needs a
-    stronger pull to the measured quaternion. Approach 1's ``acc_noise_m_s2_sqrt_hz`` and
-    ``mag_noise_ut_sqrt_hz`` were tuned with the same process parameters (grids
-    {0.14, 0.3, 0.5} and {0.66, 1.5, 3}): 5.18 deg.
+    stronger pull to the measured quaternion. Approach 1's ``acc_noise_m_s2_sqrt_hz`` was
+    tuned with the same process parameters (grid {0.14, 0.3, 0.5}), its relative
+    magnetometer noise under the input screening (grid {0.0075, 0.011, 0.015, 0.02,
+    0.025, 0.034, 0.07}): 4.26 deg (5.30 with the former 1.5 µT/√Hz, i.e. 0.034 in
+    BROAD's 44 µT field, before the field's unit was taken out).
 
-    approach : 2 (default, 001's choice: gyro + Gauss-Newton quaternion, ``H = I``) or 1
-        (the nine nonlinear outputs).
-    tau_s : τ, time constant of the first-order rate model (001 eqs. 9-11), s, > 0; a
-        number or one per body axis. The rate decays towards 0 with it between samples.
+    approach : 2 (001's choice: gyro + Gauss-Newton quaternion, ``H = I``) or 1 (the nine
+        nonlinear outputs).
+    tau_s : τ, time constant of the first-order rate model (001 eqs. 9-11), s; a number or
+        one per body axis. The rate decays towards 0 with it between samples.
     rate_noise_rad_s_sqrt_hz : density of the white noise ``w_r`` driving the rate model
-        (001 Fig. 1, ``ω̇ = (-ω + w_r)/τ``), rad/s/√Hz, > 0; a number or one per axis. The
+        (001 Fig. 1, ``ω̇ = (-ω + w_r)/τ``), rad/s/√Hz; a number or one per axis. The
         rate's stationary std is ``density / √(2τ)``.
-    gyr_noise_rad_s_sqrt_hz : gyroscope measurement noise density, rad/s/√Hz, > 0; a
-        number or one per axis.
+    gyr_noise_rad_s_sqrt_hz : gyroscope measurement noise density, rad/s/√Hz; a number or
+        one per axis.
     quat_noise_per_sqrt_hz : noise density of each component of the Gauss-Newton
         quaternion (approach 2), 1/√Hz (the quaternion is dimensionless; a component error
-        ε is a rotation of about 2ε rad), > 0. The paper's additive 4-D form, ``R = r I₄``.
-    acc_noise_m_s2_sqrt_hz : accelerometer noise density (approach 1), m/s²/√Hz, > 0;
-        divided by ``gravity_m_s2`` for the unit gravity direction. Linear acceleration
-        belongs in it.
-    mag_noise_ut_sqrt_hz : magnetometer noise density (approach 1), in the magnetometer's
-        unit (µT) per √Hz, > 0; divided by each sample's field norm.
-    mag_weight : ρ, weight of the magnetic residual in the Gauss-Newton fit (000 eq. 17),
-        > 0; 1 is 001's equal weighting, lower lets the field pull less on inclination.
+        ε is a rotation of about 2ε rad). The paper's additive 4-D form, ``R = r I₄``.
+        While the field is unusable the gravity direction alone is used, with twice the
+        angular noise (see :mod:`margtrack.kernels.ekf`).
+    acc_noise_m_s2_sqrt_hz : accelerometer noise density (approach 1), m/s²/√Hz; divided
+        by ``gravity_m_s2`` for the unit gravity direction. Linear acceleration belongs
+        in it.
+    mag_noise_rel_sqrt_hz : magnetometer noise density (approach 1) relative to the field
+        norm, 1/√Hz: the unit field direction's noise, so the results do not depend on
+        the field's unit (0.02: 0.9 µT/√Hz in BROAD's 44 µT field).
+    mag_weight : ρ, weight of the magnetic residual in the Gauss-Newton fit (000 eq. 17);
+        1 is 001's equal weighting, lower lets the field pull less on inclination.
     gn_tolerance : Gauss-Newton stopping criterion on Q = |ε_g|² + ρ²|ε_m|² or its change
-        over an update (dimensionless, unit vectors), >= 0; default 1e-14, a residual of
-        1e-7 (with the 1e-10 of ``gauss-newton`` the measured quaternion of ideal data
-        stops ~5e-6 from the truth, which the filter then inherits).
-    gn_max_iterations : cap on Gauss-Newton updates per sample, integer in [1, 1000]. The
-        fit starts from the prediction; on real data (inconsistent vectors) it converges
-        only linearly, so the cap, not the tolerance, usually ends it.
-    dip_deg : magnetic dip of the reference field, deg, positive down, in [-90, 90]; None
-        (default): measured from each sensor's first valid sample.
-    gravity_m_s2 : gravity magnitude for approach 1's accelerometer noise, m/s², > 0.
-    init_rate_std_rad_s : initial rate uncertainty per axis, rad/s, > 0.
-    init_quat_std : initial uncertainty of each quaternion component, in (0, 2].
+        over an update (dimensionless, unit vectors); default 1e-14, a residual of 1e-7
+        (with the 1e-10 of ``gauss-newton`` the measured quaternion of ideal data stops
+        ~5e-6 from the truth, which the filter then inherits).
+    gn_max_iterations : cap on Gauss-Newton updates per sample. The fit starts from the
+        prediction; on real data (inconsistent vectors) it converges only linearly, so the
+        cap, not the tolerance, usually ends it.
+    mag_dip_ref_deg (shared) : magnetic dip of the reference field, deg, positive down;
+        the same number is the screening's reference dip. None (default): measured from
+        each sensor's first valid sample and kept across restarts.
+    gravity_m_s2 : gravity magnitude for approach 1's accelerometer noise, m/s².
+    init_rate_std_rad_s : initial rate uncertainty per axis, rad/s (also after a restart).
+    init_quat_std : initial uncertainty of each quaternion component (also after a
+        restart: the covariance of the attitude is not kept over a gap).
     gyr_null_rest_s : the gyro null point is the mean rate over the still period that
-        starts the recording, if it lasts at least this long, s, >= 0; default 1; 0: raw
-        gyro. 001's rate model has no bias state: a bias enters the measured rate as
-        signal (see :mod:`margtrack.filters._rest_null`; 000 Appendix B step 1 calibrates
-        the null the same way).
+        starts the recording, if it lasts at least this long, s; 0: raw gyro. 001's rate
+        model has no bias state: a bias enters the measured rate as signal (see
+        :mod:`margtrack.filters._rest_null`; 000 Appendix B step 1 calibrates the null the
+        same way). A restart keeps it.
     """
 
-    approach: int = 2
-    tau_s: PerAxis = 0.3
-    rate_noise_rad_s_sqrt_hz: PerAxis = 1.4
-    gyr_noise_rad_s_sqrt_hz: PerAxis = 3e-4
-    quat_noise_per_sqrt_hz: float = 0.075
-    acc_noise_m_s2_sqrt_hz: float = 0.3
-    mag_noise_ut_sqrt_hz: float = 1.5
-    mag_weight: float = 1.0
-    gn_tolerance: float = 1e-14
-    gn_max_iterations: int = 2
-    dip_deg: float | None = None
-    gravity_m_s2: float = STANDARD_GRAVITY_M_S2
-    init_rate_std_rad_s: float = 1.0
-    init_quat_std: float = 0.5
-    gyr_null_rest_s: float = 1.0
+    approach: int = param(
+        2, ge=1, le=2, help="2: gyro + Gauss-Newton quaternion (H = I); 1: nine vector outputs"
+    )
+    tau_s: PerAxis = param(
+        0.3, unit="s", gt=0, help="time constant of the rate model (one number or x, y, z)"
+    )
+    rate_noise_rad_s_sqrt_hz: PerAxis = param(
+        1.4, unit="rad/s/√Hz", gt=0, help="density of the noise driving the rate model"
+    )
+    gyr_noise_rad_s_sqrt_hz: PerAxis = param(
+        3e-4, unit="rad/s/√Hz", gt=0, help="gyroscope measurement noise density"
+    )
+    quat_noise_per_sqrt_hz: float = param(
+        0.075,
+        unit="1/√Hz",
+        gt=0,
+        help="noise density of each Gauss-Newton quaternion component (approach 2)",
+    )
+    acc_noise_m_s2_sqrt_hz: float = param(
+        0.3, unit="m/s²/√Hz", gt=0, help="accelerometer noise density (approach 1)"
+    )
+    mag_noise_rel_sqrt_hz: float = param(
+        0.02,
+        unit="1/√Hz",
+        gt=0,
+        help="magnetometer noise density relative to the field norm (approach 1)",
+    )
+    mag_weight: float = param(
+        1.0, gt=0, help="weight rho of the magnetic residual in the Gauss-Newton fit"
+    )
+    gn_tolerance: float = param(
+        1e-14, ge=0, help="Gauss-Newton stops when the criterion or its change is below this"
+    )
+    gn_max_iterations: int = param(
+        2, ge=1, le=1000, help="cap on Gauss-Newton updates per sample"
+    )
+    gravity_m_s2: float = param(
+        STANDARD_GRAVITY_M_S2, unit="m/s²", gt=0, help="gravity for approach 1's acc noise"
+    )
+    init_rate_std_rad_s: float = param(
+        1.0, unit="rad/s", gt=0, help="initial rate uncertainty per axis (and after restarts)"
+    )
+    init_quat_std: float = param(
+        0.5, gt=0, le=2, help="initial uncertainty of each quaternion component"
+    )
+    gyr_null_rest_s: float = param(
+        1.0,
+        unit="s",
+        ge=0,
+        help="gyro null from a still start at least this long (0: raw gyro); kept on restarts",
+    )
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        set_ = object.__setattr__
-        if isinstance(self.approach, bool) or self.approach not in (1, 2):
-            raise ValueError(f"approach must be 1 or 2, got {self.approach!r}")
-        set_(self, "approach", int(self.approach))
-        for name in ("tau_s", "rate_noise_rad_s_sqrt_hz", "gyr_noise_rad_s_sqrt_hz"):
-            set_(self, name, _per_axis(getattr(self, name), name))
-        for name in ("quat_noise_per_sqrt_hz", "acc_noise_m_s2_sqrt_hz",
-                     "mag_noise_ut_sqrt_hz", "mag_weight", "gravity_m_s2",
-                     "init_rate_std_rad_s"):
-            set_(self, name, _positive(getattr(self, name), name))
-        set_(self, "init_quat_std", _positive(self.init_quat_std, "init_quat_std", 2.0))
-        tol = self.gn_tolerance
-        if isinstance(tol, (str, bool)) or not (math.isfinite(tol) and tol >= 0.0):
-            raise ValueError(f"gn_tolerance must be a finite number >= 0, got {tol!r}")
-        set_(self, "gn_tolerance", float(tol))
-        cap = self.gn_max_iterations
-        if isinstance(cap, bool) or int(cap) != cap or not 1 <= cap <= 1000:
-            raise ValueError(f"gn_max_iterations must be an integer in [1, 1000], got {cap!r}")
-        set_(self, "gn_max_iterations", int(cap))
-        set_(self, "dip_deg", check_dip_deg(self.dip_deg))
-        rest = self.gyr_null_rest_s
-        if isinstance(rest, (str, bool)) or not (math.isfinite(rest) and rest >= 0.0):
-            raise ValueError(f"gyr_null_rest_s must be a finite number >= 0 (s), got {rest!r}")
-        set_(self, "gyr_null_rest_s", float(rest))
+    def check(self) -> None:
+        """Per-axis parameters: one number or three."""
+        super().check()
+        for name in _PER_AXIS:
+            value = getattr(self, name)
+            if isinstance(value, tuple) and len(value) != 3:
+                raise ValueError(
+                    f"parameter {name} must be a number or three of them (one per body axis), "
+                    f"got {len(value)}"
+                )
 
     def axis_values(self, name: str) -> Array:
         """A per-axis parameter as a (3,) array."""
@@ -197,14 +206,21 @@ class MarinsEkfState(State):
         may have any non-zero norm, which eqs. 12-15 account for).
     gyr_est_rad_s : (S, 3) rate state ω, rad/s, body frame.
     cov : (S, 7, 7) covariance of ``[ω (rad/s)², q (dimensionless)]``.
-    dip_rad : (S,) reference dip, rad, positive down; NaN until measured (``dip_deg`` None).
-    rest_null : progress of the gyro null taken from the still start.
+    dip_rad : (S,) reference dip, rad, positive down; NaN until measured
+        (``mag_dip_ref_deg`` None); kept across restarts.
+    rest_null : progress of the gyro null taken from the still start (kept on restarts).
+
+    A restart after a gap starts ``quat``, ``gyr_est_rad_s`` and ``cov`` afresh.
     """
 
     gyr_est_rad_s: Array = field(default_factory=lambda: np.zeros((0, 3)))
     cov: Array = field(default_factory=lambda: np.zeros((0, 7, 7)))
     dip_rad: Array = field(default_factory=lambda: np.zeros(0))
     rest_null: RestNullState = field(default_factory=lambda: RestNullState.new(0))
+
+    def gyr_bias_rad_s(self) -> Array | None:
+        """(S, 3) the gyro null in use (the still start's mean rate; 0 without one), rad/s."""
+        return rest_null_rad_s(self.rest_null, self.quat.shape[0])
 
 
 def initial_covariance(n_sensors: int, rate_std_rad_s: float, quat_std: float) -> Array:
@@ -220,8 +236,8 @@ class MarinsEkf(Estimator[MarinsEkfParams, MarinsEkfState]):
     """Marins' 7-state quaternion EKF (``--method ekf``), 001 sections 3-4.
 
     Needs a magnetometer. Inputs per sample: gyroscope rad/s, accelerometer m/s²,
-    magnetometer (µT), body frame. Starts at the TRIAD orientation of the first sample
-    (or ``reset(q0)``) with zero rate.
+    magnetometer (any unit), body frame. Starts at the TRIAD orientation of the first usable
+    sample (or ``reset(q0)``) with zero rate.
 
     Outputs besides ``quat`` (unit, sign continuous):
 
@@ -231,15 +247,22 @@ class MarinsEkf(Estimator[MarinsEkfParams, MarinsEkfState]):
       ``state.cov``;
     - ``iterations`` (N,) int32: Gauss-Newton updates applied (0 for approach 1);
     - ``gyr_null_rad_s`` (N, 3): the gyro null subtracted (``gyr_null_rest_s``), rad/s;
-    - ``degenerate`` (N,) int8: 0 ok, 1 zero accelerometer, 2 zero magnetometer,
-      3 accelerometer parallel to the field, 4 Gauss-Newton failed (these four are
-      corrected by the gyroscope alone), 5 innovation covariance not positive definite
-      (predicted only).
+    - ``degenerate`` (N,) int8, method detail: 0 ok; 2 zero magnetometer (updated from
+      the gyroscope and the gravity direction; the screening's MAG_IGNORED or
+      MAG_DISTURBED says why); 1 zero accelerometer (flagged ACC_IGNORED), 3
+      accelerometer parallel to the field, 4 Gauss-Newton failed (these three updated by
+      the gyroscope alone, flagged ACC_IGNORED and MAG_IGNORED); 5 innovation covariance
+      not positive definite (predicted only, flagged ACC_IGNORED and MAG_IGNORED).
+
+    A restart after a gap keeps the dip and the gyro null and starts the rate, the
+    quaternion and the whole covariance afresh (``init_*``): the new start is TRIAD's, not
+    the old estimate's.
     """
 
     name = "ekf"
     params_type = MarinsEkfParams
     mag_optional = False
+    kept_on_restart = ("dip_rad",)
 
     def _new_state(self, quat0: Array) -> MarinsEkfState:
         p = self.params
@@ -283,13 +306,23 @@ class MarinsEkf(Estimator[MarinsEkfParams, MarinsEkfState]):
         kernel.marins_ekf(
             p.approach, state.quat, state.gyr_est_rad_s, state.cov, state.dip_rad,
             gyr, acc, mag, dt, frames.up(p.frame), frames.mag_reference(p.frame, dip_deg=0.0),
-            dip_rad_or_nan(p.dip_deg), p.axis_values("tau_s"),
+            dip_rad_or_nan(p.mag_dip_ref_deg), p.axis_values("tau_s"),
             p.axis_values("rate_noise_rad_s_sqrt_hz") ** 2,
             p.axis_values("gyr_noise_rad_s_sqrt_hz") ** 2,
             p.quat_noise_per_sqrt_hz**2, p.acc_noise_m_s2_sqrt_hz**2,
-            p.mag_noise_ut_sqrt_hz**2, p.gravity_m_s2**2, p.mag_weight, p.gn_tolerance,
+            p.mag_noise_rel_sqrt_hz**2, p.gravity_m_s2**2, p.mag_weight, p.gn_tolerance,
             p.gn_max_iterations, quat, rate, cov_diag, iterations, flags,
         )
         outputs = {"gyr_est_rad_s": rate, "cov_diag": cov_diag, "iterations": iterations,
                    "degenerate": flags, "gyr_null_rad_s": null}
         return quat, outputs
+
+    def _method_flags(self, outputs: Any) -> NDArray[np.uint16] | None:
+        """``degenerate`` on the flag schema (see the class docstring)."""
+        return _FLAGS_OF_CODE[outputs["degenerate"]]
+
+
+_BOTH = Flag.ACC_IGNORED | Flag.MAG_IGNORED
+#: Flag bits of each ``degenerate`` code, indexed by it: OK 0, ZERO_ACC 1, ZERO_MAG 2 (the
+#: screening's flag stands; the accelerometer was used), PARALLEL 3, SOLVER_FAILED 4, NOT_PD 5
+_FLAGS_OF_CODE = np.array([0, Flag.ACC_IGNORED, 0, _BOTH, _BOTH, _BOTH], dtype=np.uint16)

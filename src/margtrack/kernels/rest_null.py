@@ -27,7 +27,7 @@ def _angle_cos(ax, ay, az, bx, by, bz):
 @njit(cache=True)
 def subtract_rest_null(
     gyr, acc, mag, dt, total, count, duration, acc_sum, mag_sum, still,
-    min_rest_s, gyr_tol_rad_s, acc_cos_min, mag_cos_min, out, null_out,
+    min_rest_s, gyr_tol_rad_s, acc_cos_min, mag_cos_min, max_rate_rad_s, out, null_out,
 ):  # fmt: skip
     """Subtract the initial-rest gyro null from S sensors' gyroscope series.
 
@@ -39,7 +39,9 @@ def subtract_rest_null(
     and its acc (and mag) direction has cosine >= ``acc_cos_min`` (``mag_cos_min``) with
     the mean so far (a mean, not the first sample: magnetometers can be noisy by
     degrees). The null is the running mean while still, the frozen mean after, and 0 if
-    the still start lasted less than ``min_rest_s``.
+    the still start lasted less than ``min_rest_s``. A zero acc or mag vector (a screened
+    sample) passes its direction test; a rate beyond ``max_rate_rad_s`` (or non-finite)
+    is left out without ending the still start.
     out (S, N, 3): gyr minus null; null_out (S, N, 3): the null used.
     """
     n_sensors, n = gyr.shape[0], gyr.shape[1]
@@ -47,7 +49,9 @@ def subtract_rest_null(
     for s in range(n_sensors):
         for i in range(n):
             gx, gy, gz = gyr[s, i, 0], gyr[s, i, 1], gyr[s, i, 2]
-            if still[s]:
+            sane = abs(gx) <= max_rate_rad_s and abs(gy) <= max_rate_rad_s
+            sane = sane and abs(gz) <= max_rate_rad_s
+            if still[s] and sane:
                 if count[s] == 0:
                     ok = True
                 else:

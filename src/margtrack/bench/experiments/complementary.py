@@ -48,7 +48,7 @@ def _simulate(trajectory: sim.Trajectory, seed: int = 0, **kwargs) -> Recording:
 
 
 def _bachmann(cls: type[Bachmann] = Bachmann, **params) -> Bachmann:
-    return cls(**{"dip_deg": DIP, "mag_weight": 1.0, **params})
+    return cls(**{"mag_dip_ref_deg": DIP, "mag_weight": 1.0, **params})
 
 
 def _figure(out_dir: Path, name: str, draw: Callable) -> Path:
