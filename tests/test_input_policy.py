@@ -16,8 +16,6 @@ import margtrack as mt
 from margtrack import methods
 from margtrack.estimator import Flag
 
-pytestmark = pytest.mark.kernel
-
 ALL = methods.available()
 RECURSIVE = [m for m in ALL if methods.get(m).uses_gyr]
 NINE_D = [m for m in RECURSIVE if m != "gyro"]
