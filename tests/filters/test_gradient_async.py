@@ -66,8 +66,8 @@ def test_live_updates_equal_a_run_on_held_samples(rec):
     held_mag = rec.mag[:n][(np.arange(n) // 10) * 10]
     batch = Gradient().run(gyr=rec.gyr[:n], acc=held_acc, mag=held_mag, t=rec.t[:n])
     assert np.max(np.abs(np.array(out) - batch.quat)) < 1e-12
-    np.testing.assert_array_equal(live.state.acc_held[0], rec.acc[396])
-    np.testing.assert_array_equal(live.state.mag_held[0], rec.mag[390])
+    np.testing.assert_array_equal(live.state.get("acc_held")[0], rec.acc[396])
+    np.testing.assert_array_equal(live.state.get("mag_held")[0], rec.mag[390])
 
 
 def test_live_needs_an_accelerometer_sample_or_q0_first(rec):
@@ -79,7 +79,7 @@ def test_live_needs_an_accelerometer_sample_or_q0_first(rec):
     assert quat.angle_between(f.update_gyr(rec.gyr[0]), rec.quat_true[0]) < 1e-12
     q = f.update_gyr(rec.gyr[1])
     assert quat.angle_between(q, quat.integrate(rec.quat_true[0], rec.gyr[1], 1 / 200)) < 1e-12
-    assert f.state.acc_held.tolist() == [[0.0, 0.0, 0.0]]
+    assert f.state.get("acc_held").tolist() == [[0.0, 0.0, 0.0]]
     est = f.run(gyr=rec.gyr[2:3], acc=np.zeros((1, 3)), t=rec.t[2:3])
     assert est.outputs["ignored"][0] == ACC_IGNORED
 

@@ -58,7 +58,7 @@ def test_fixed_reference_lives_in_the_state(noisy):
     whole = Gradient(mag_objective="fixed").run(rec)
     first = Gradient(mag_objective="fixed")
     first.run(rec.slice(0, 100))
-    ref = first.state.mag_ref
+    ref = first.state.get("mag_ref")
     # a unit reference with the simulator's 60 deg dip, up to the initial tilt error
     assert np.hypot(*ref[0]) == pytest.approx(1.0, abs=1e-9)
     assert np.degrees(np.arctan2(-ref[0, 1], ref[0, 0])) == pytest.approx(60.0, abs=3.0)

@@ -2,24 +2,22 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
-from margtrack import frames
 from margtrack import quaternion as quat
 from margtrack.estimator import Flag, Params, initial_orientation, specs
 from margtrack.filters.gradient import (
+    _FROM_NWU,
     ACC_IGNORED,
     MAG_IGNORED,
     MAG_OBJECTIVES,
     MAG_REJECTED,
     Gradient,
     GradientParams,
-    GradientState,
 )
 from margtrack.filters.gyro import GyroIntegration, GyroParams
+from margtrack.kernels import contract
 from margtrack.kernels import gradient as kernel
 from margtrack.sim import simulate_default
 
@@ -132,18 +130,24 @@ def test_kernel_no_op_and_extreme_screened_samples_never_give_nan(objective, exa
 
 
 def _kernel(gyr, acc, mag, dt, objective, exact, seed=5):
-    """One sensor through the gradient kernel from a random start: quats, ignored, mag_ref."""
+    """One sensor through the gradient step alone (no screening, no clock) from a random
+    start, β = 0.5, ENU: quats, ``ignored`` bits, the fixed field reference."""
     n = gyr.shape[1]
-    q = quat.normalize(np.random.default_rng(seed).normal(size=(1, 4)))
-    ref = np.zeros((1, 2))
-    out = [np.empty((1, n, 4)), np.empty((1, n, 3)), np.empty((1, n, 3)), np.empty((1, n, 3))]
-    flags = np.empty((1, n), dtype=np.int8)
+    f = Gradient(beta=0.5, mag_objective=objective, integration="exact" if exact else "euler",
+                 gravity_m_s2=9.81)
+    f.reset(quat.normalize(np.random.default_rng(seed).normal(size=(1, 4))))
+    row = f._state.rows[0]
+    q, x, flags = np.empty((n, 4)), np.empty((n, kernel.N_OUT)), np.empty(n, dtype=np.uint16)
     with np.errstate(over="ignore", under="ignore"):  # numpy scalars when the JIT is off
-        kernel.gradient_filter(q, ref, gyr, acc, mag, True, dt, 0.5,
-                               np.array([np.sqrt(0.5), 0.0, 0.0, np.sqrt(0.5)]),
-                               frames.up("ENU"), MAG_OBJECTIVES[objective], exact, 9.81,
-                               *out, flags)  # fmt: skip
-    return out[0][0], flags[0], ref
+        kernel.steps(row, f._coefs[contract.N_SCOEF :], dt, gyr[0], acc[0], mag[0], True,
+                     q, x, flags)  # fmt: skip
+    ignored = x[:, kernel.X_IGNORED].astype(np.int8)
+    # the step's flags are the ignored bits in the schema
+    expected = np.where(ignored & ACC_IGNORED, Flag.ACC_IGNORED, 0) | np.where(
+        ignored & MAG_REJECTED, Flag.MAG_IGNORED, 0
+    )
+    np.testing.assert_array_equal(flags, expected)
+    return q, ignored, row[kernel.G_MAG_REF : kernel.G_MAG_REF + 2].copy()
 
 
 @pytest.mark.parametrize("objective", list(MAG_OBJECTIVES))
@@ -204,18 +208,29 @@ def test_gradient_restart_keeps_the_fixed_reference_and_the_held_samples(rec):
     gyr, acc, mag, t = _gapped(rec)
     f = Gradient(mag_objective="fixed")
     f.run(gyr=gyr[:300], acc=acc[:300], mag=mag[:300], t=t[:300])
-    ref = f.state.mag_ref.copy()
+    ref = f.state.get("mag_ref")
     assert ref[0, 0] > 0.0
     est = f.run(gyr=gyr[300:], acc=acc[300:], mag=mag[300:], t=t[300:])
     restart = initial_orientation(acc[300:301], mag[300:301], "ENU")[0]
     np.testing.assert_allclose(est.quat[0], restart, atol=1e-15)
     # the field's reference is knowledge of the environment: kept, not measured again
-    np.testing.assert_array_equal(f.state.mag_ref, ref)
+    np.testing.assert_array_equal(f.state.get("mag_ref"), ref)
     # what a fresh reference at the restart would have been differs
     fresh = Gradient(mag_objective="fixed")
     fresh.run(gyr=gyr[300:], acc=acc[300:], mag=mag[300:], t=t[300:])
-    assert np.max(np.abs(fresh.state.mag_ref - ref)) > 1e-6
-    assert Gradient.kept_on_restart == ("acc_held", "mag_held", "mag_ref")
+    assert np.max(np.abs(fresh.state.get("mag_ref") - ref)) > 1e-6
+    # a restart (a start after the first) takes the new orientation and keeps the field
+    # reference and the held samples: they belong to the sensors and the field
+    rows = f.state.rows
+    kept = slice(kernel.G_MAG_REF, kernel.N_ROW)
+    assert np.all(rows[0, kernel.G_ACC_HELD : kernel.N_ROW] != 0.0)
+    q0 = quat.from_euler([0.4, 0.1, -0.2])
+    restarted = rows.copy()
+    kernel.start(restarted, f._coefs, q0[None])
+    np.testing.assert_array_equal(restarted[:, kept], rows[:, kept])
+    np.testing.assert_allclose(restarted[0, contract.K_Q : contract.K_Q + 4], q0, atol=0)
+    nwu = restarted[0, kernel.G_Q : kernel.G_Q + 4]
+    assert quat.angle_between(quat.multiply(_FROM_NWU["ENU"], nwu), q0) < 1e-15
 
 
 def test_gradient_after_a_gap_converges_like_the_clean_run(rec):
@@ -265,7 +280,7 @@ def test_live_non_finite_samples_are_held_flagged_and_skipped_like_run(rec):
     assert flags[104] == 0 and flags[210] == 0
     assert np.count_nonzero(flags) == 14
     # the state holds the samples as received (not the screening's zero sentinel)
-    assert f.state.acc_held[0].tolist() == acc[296].tolist()
+    assert f.state.get("acc_held")[0].tolist() == acc[296].tolist()
 
 
 def test_live_unusable_first_sample_holds_the_output_until_a_usable_one(rec):
@@ -273,9 +288,11 @@ def test_live_unusable_first_sample_holds_the_output_until_a_usable_one(rec):
     f.update_mag(rec.mag[0])
     f.update_acc([np.nan, 0.0, 9.8])
     q = f.update_gyr(rec.gyr[0])  # not refused: nothing usable to start from yet
-    assert f.flags[0] == Flag.INVALID | Flag.ACC_IGNORED | Flag.MAG_IGNORED | Flag.INITIALISING
+    # the screening's flags and the hold (the field, usable, is not judged by the filter
+    # before a start: nothing is used then)
+    assert f.flags[0] == Flag.INVALID | Flag.ACC_IGNORED | Flag.INITIALISING
     np.testing.assert_array_equal(q, [1.0, 0.0, 0.0, 0.0])
-    assert np.isnan(f.state.acc_held[0, 0])
+    assert np.isnan(f.state.get("acc_held")[0, 0])
     f.update_gyr(rec.gyr[1])
     assert f.flags[0] & Flag.INITIALISING
     f.update_acc(rec.acc[2])
@@ -287,29 +304,29 @@ def test_live_unusable_first_sample_holds_the_output_until_a_usable_one(rec):
 
 
 # -- state and parameters --------------------------------------------------------------------
-def test_gradient_state_copy_copies_every_field(rec):
+def test_gradient_state_is_complete_and_copies_are_independent(rec):
     f = Gradient(mag_objective="fixed")
     f.run(rec.slice(0, 50))
-    state = f._state
-    assert state is not None and state.screen is not None
+    state = f.state
+    assert state is not None and state.rows is not f._state.rows
+    assert state.get("mag_ref")[0, 0] > 0.0  # the fixed reference travels in the row
+    np.testing.assert_array_equal(state.get("acc_held")[0], rec.acc[49])
+    np.testing.assert_array_equal(state.get("mag_held")[0], rec.mag[49])
+    nwu = state.get("quat_nwu")[0]
+    assert quat.angle_between(quat.multiply(_FROM_NWU["ENU"], nwu), state.quat[0]) < 1e-15
     copied = state.copy()
-    for field in dataclasses.fields(GradientState):
-        a, b = getattr(state, field.name), getattr(copied, field.name)
-        if isinstance(a, np.ndarray):
-            assert b is not a
-            np.testing.assert_array_equal(a, b)
-        elif dataclasses.is_dataclass(a):
-            assert b is not a
-            for sub in dataclasses.fields(a):
-                x, y = getattr(a, sub.name), getattr(b, sub.name)
-                assert y is not x
-                np.testing.assert_array_equal(x, y)
-        else:
-            assert a == b, field.name
-    # independence: changing the copy leaves the estimator as it was
-    copied.quat[:] = 0.0
-    copied.screen.mag_ref[:] = -1.0
-    assert np.all(state.quat != 0.0) and np.all(state.screen.mag_ref != -1.0)
+    assert copied.rows is not state.rows and copied.clock is not state.clock
+    np.testing.assert_array_equal(copied.rows, state.rows)
+    # independence: changing the copy leaves the original as it was
+    copied.rows[:] = -1.0
+    copied.clock[:] = -1.0
+    assert not np.any(state.rows == -1.0) and state.t_last_s == rec.t[49]
+    # resuming from the state in another instance continues the same run
+    other = Gradient(mag_objective="fixed")
+    other.state = state
+    rest = other.run(rec.slice(50, 120))
+    whole = Gradient(mag_objective="fixed").run(rec.slice(0, 120))
+    np.testing.assert_array_equal(rest.quat, whole.quat[50:])
 
 
 def test_parameters_are_declared():

@@ -267,9 +267,9 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         flags = np.empty((n_sensors, n), dtype=np.uint16)
         has = (x.mag is not None) | (self._has_gyr_bit if x.gyr is not None else 0)
         self.kernel.run(
-            work.rows, work.clock, self._coefs, np.ascontiguousarray(x.t),
-            x.acc if x.gyr is None else x.gyr, x.acc, x.acc if x.mag is None else x.mag,
-            has, q, extra, flags,
+            work.rows, work.clock, self._coefs, _read_only(np.ascontiguousarray(x.t)),
+            _read_only(x.acc if x.gyr is None else x.gyr), _read_only(x.acc),
+            _read_only(x.acc if x.mag is None else x.mag), has, q, extra, flags,
         )
         if self._params.strict:
             problem = first_problem(flags)
@@ -291,3 +291,11 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
             outputs=outputs,
             flags=flags,
         )
+
+
+def _read_only(arr: Array) -> Array:
+    """A read-only view: inputs reach the kernels with one type (a Recording's arrays are
+    read-only, the user's usually not), so each kernel compiles once, not twice."""
+    view = arr.view()
+    view.flags.writeable = False
+    return view

@@ -87,8 +87,9 @@ def _sample(value: ArrayLike, name: str, n_sensors: int | None) -> Array:
 class LiveSensors:
     """Live input from sensors arriving separately: ``update_acc``/``_mag``/``_gyr``.
 
-    Mix into an :class:`~margtrack.estimator.Estimator` whose state has ``acc_held``
-    and ``mag_held`` (S, 3) arrays (zeros: nothing received). Accelerometer and magnetometer
+    Mix into a :class:`~margtrack.estimator.compiled.CompiledEstimator` whose state rows
+    have ``acc_held`` and ``mag_held`` slots of width 3 (its ``state_layout``; zeros:
+    nothing received). Accelerometer and magnetometer
     samples are stored as they arrive; each gyroscope sample runs one step of the filter
     (``update``) with the newest of them (zero-order hold, no latency; offline,
     :func:`align_to_gyro` interpolates instead). Samples that arrive before the first
@@ -108,9 +109,14 @@ class LiveSensors:
     def _pending(self) -> dict[str, Array]:
         return self.__dict__.setdefault("_pending_samples", {})
 
+    def _held(self, name: str) -> slice:
+        """Columns of the state's rows that hold ``name`` ("acc_held", "mag_held")."""
+        offset, width = self._state.layout[name]
+        return slice(offset, offset + width)
+
     def _n_sensors(self) -> int | None:
         if self._state is not None:
-            return int(self._state.quat.shape[0])
+            return int(self._state.rows.shape[0])
         held = self._pending()
         return None if not held else int(next(iter(held.values())).shape[0])
 
@@ -128,7 +134,7 @@ class LiveSensors:
         if self._state is None:
             self._pending()["acc"] = arr
         else:
-            self._state.acc_held[...] = arr
+            self._state.rows[:, self._held("acc_held")] = arr
 
     def update_mag(self, mag: ArrayLike) -> None:
         """Store the newest magnetometer sample, (3,) or (S, 3) in any field unit (body).
@@ -139,7 +145,7 @@ class LiveSensors:
         if self._state is None:
             self._pending()["mag"] = arr
         else:
-            self._state.mag_held[...] = arr
+            self._state.rows[:, self._held("mag_held")] = arr
 
     def update_gyr(self, gyr: ArrayLike, dt: float | None = None) -> Array:
         """Process one gyroscope sample (3,) or (S, 3) rad/s with the held acc/mag samples.
@@ -152,7 +158,8 @@ class LiveSensors:
         """
         g = np.asarray(gyr, dtype=np.float64)
         one = g.ndim == 1
-        if self._state is None:
+        state = self._state
+        if state is None:
             held = self._pending()
             if "acc" not in held:
                 raise ValueError(
@@ -161,15 +168,19 @@ class LiveSensors:
                 )
             acc, mag = held["acc"], held.get("mag")
         else:
-            acc = self._state.acc_held.copy()
-            mag = self._state.mag_held.copy() if np.any(self._state.mag_held) else None
+            acc = state.rows[:, self._held("acc_held")].copy()
+            mag = state.rows[:, self._held("mag_held")].copy()
+            if not any(mag.flat):  # none received yet
+                mag = None
         q = self.update(  # type: ignore[attr-defined]
             g, acc[0] if one else acc, None if mag is None else (mag[0] if one else mag), dt
         )
         # the kernel stored the screened samples; keep holding them as received, so the
         # next step sees (and flags) what run() on the held series would
-        self._state.acc_held[...] = acc
+        rows = self._state.rows
+        rows[:, self._held("acc_held")] = acc
         if mag is not None:
-            self._state.mag_held[...] = mag
-        self._pending().clear()
+            rows[:, self._held("mag_held")] = mag
+        if state is None:
+            self._pending().clear()
         return q

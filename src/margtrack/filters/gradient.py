@@ -25,15 +25,17 @@ component of the accelerometer and the linear acceleration relative to the groun
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
 from margtrack import frames
-from margtrack.estimator import Estimator, Flag, Params, State, param
+from margtrack.estimator import Estimate, Params, param
+from margtrack.estimator.compiled import CompiledEstimator
 from margtrack.filters._async import LiveSensors, align_to_gyro
 from margtrack.frames import STANDARD_GRAVITY_M_S2
 from margtrack.kernels import gradient as kernel
@@ -47,7 +49,6 @@ __all__ = [
     "MAG_REJECTED",
     "Gradient",
     "GradientParams",
-    "GradientState",
     "align_to_gyro",
 ]
 
@@ -63,16 +64,6 @@ ACC_IGNORED = kernel.ACC_IGNORED
 MAG_IGNORED = kernel.MAG_IGNORED
 MAG_REJECTED = kernel.MAG_REJECTED
 
-#: ``ignored`` bits (0-7) to ``Flag`` bits: what ``Gradient._method_flags`` adds
-_SCHEMA = np.array(
-    [
-        (Flag.ACC_IGNORED if bits & ACC_IGNORED else 0)
-        | (Flag.MAG_IGNORED if bits & MAG_REJECTED else 0)
-        for bits in range(8)
-    ],
-    dtype=np.uint16,
-)
-
 # q_frame = c ⊗ q_nwu: NWU (x north, y west, z up) is where the kernel computes
 _FROM_NWU = {
     "ENU": np.array([np.sqrt(0.5), 0.0, 0.0, np.sqrt(0.5)]),  # +90 deg about up
@@ -83,17 +74,6 @@ _FROM_NWU = {
 #: ``margtrack.bench.tune`` (MARG, forward component, exact integration), printed by
 #: ``python benchmarks/madgwick_baseline.py`` next to ahrs's tuned Madgwick. See GradientParams.
 DEFAULT_BETA = 0.025
-
-
-def _read_only(a: Array) -> Array:
-    """A read-only view of ``a``, so the kernel always sees one array type.
-
-    Inputs arrive writable or not (Recordings freeze theirs) and numba compiles one
-    specialisation per combination; read-only views keep it to one compilation.
-    """
-    view = a.view()
-    view.flags.writeable = False
-    return view
 
 
 @dataclass(frozen=True)
@@ -149,40 +129,7 @@ class GradientParams(Params):
     )
 
 
-@dataclass(kw_only=True)
-class GradientState(State):
-    """Orientation, clock and screening (see :class:`State`) plus the slow-sensor samples.
-
-    acc_held : (S, 3) m/s², the accelerometer sample held for the next live gyro step: the
-        newest one received by ``update_acc`` as received (a non-finite one included: the
-        screening flags it at each step that uses it), or after ``run``/``update`` the last
-        sample processed as screened (zeros: none, or unusable).
-    mag_held : (S, 3) field unit, the same for the magnetometer (zeros: none yet).
-    mag_ref : (S, 2) [b_x, b_z], unit field reference of ``mag_objective="fixed"`` in
-        north/up components (b_x = 0: not measured yet).
-
-    A restart after a gap keeps all three (they belong to the sensors and the field, not
-    to the orientation): see ``Gradient.kept_on_restart``.
-    """
-
-    acc_held: Array
-    mag_held: Array
-    mag_ref: Array
-
-    def copy(self) -> GradientState:
-        """A copy of every field, base ones included (explicit: cheaper in ``update``)."""
-        return GradientState(
-            quat=self.quat.copy(),
-            t_last_s=self.t_last_s,
-            ready=None if self.ready is None else self.ready.copy(),
-            screen=None if self.screen is None else self.screen.copy(),
-            acc_held=self.acc_held.copy(),
-            mag_held=self.mag_held.copy(),
-            mag_ref=self.mag_ref.copy(),
-        )
-
-
-class Gradient(LiveSensors, Estimator[GradientParams, GradientState]):
+class Gradient(LiveSensors, CompiledEstimator[GradientParams]):
     """Gradient-descent filter of 004, magnetometer forward component (``--method gradient``).
 
     Outputs (``Estimate.outputs``, arrays (…, N, ...)):
@@ -199,19 +146,40 @@ class Gradient(LiveSensors, Estimator[GradientParams, GradientState]):
       Where the accelerometer was not used (flag ACC_IGNORED) it holds no measurement
       (``-g · up``): read it with the flags.
     - ``ignored`` (…, N) int8 bits, method detail (``Estimate.flags`` carries them in the
-      common schema): ``ACC_IGNORED`` (no usable accelerometer: gyro-only step, no
-      magnetometer term either; ``Flag.ACC_IGNORED``), ``MAG_IGNORED`` (accelerometer used,
-      no magnetometer term: zero field or its forward component below 1 % of it),
-      ``MAG_REJECTED`` (a non-zero field the filter itself did not use: forward component
-      vanished, or no accelerometer to go with it; ``Flag.MAG_IGNORED``). A zero field is
-      the screening's sentinel: it has flagged why (``MAG_IGNORED`` or ``MAG_DISTURBED``).
-      A no-op sample (``dt = 0``, neither measurement: a skipped timestamp) has no bits.
+      common schema, and :attr:`flags` in ``update``): ``ACC_IGNORED`` (no usable
+      accelerometer: gyro-only step, no magnetometer term either; ``Flag.ACC_IGNORED``),
+      ``MAG_IGNORED`` (accelerometer used, no magnetometer term: zero field or its forward
+      component below 1 % of it), ``MAG_REJECTED`` (a non-zero field the filter itself did
+      not use: forward component vanished, or no accelerometer to go with it;
+      ``Flag.MAG_IGNORED``). A zero field is the screening's sentinel: it has flagged why
+      (``MAG_IGNORED`` or ``MAG_DISTURBED``). A no-op sample (``dt = 0``, neither
+      measurement: a skipped timestamp) has no bits, nor has a held sample before the
+      start (``Flag.INITIALISING``; its outputs are those of the held orientation, its
+      linear acceleration ``-g · up``).
+
+    State (:class:`~margtrack.estimator.compiled.CompiledState`, read with
+    ``state.get(name)``; the row layout is :mod:`margtrack.kernels.gradient`'s):
+
+    - ``quat_nwu`` (S, 4): the orientation in NWU, where the recursion runs;
+    - ``mag_ref`` (S, 2) [b_x, b_z]: unit field reference of ``mag_objective="fixed"`` in
+      north/up components (b_x = 0: not measured yet);
+    - ``acc_held`` (S, 3) m/s²: the accelerometer sample held for the next live gyro step:
+      the newest one received by ``update_acc`` as received (a non-finite one included: the
+      screening flags it at each step that uses it), or after ``run``/``update`` the last
+      sample processed as screened (zeros: none, or unusable);
+    - ``mag_held`` (S, 3) field unit: the same for the magnetometer (zeros: none yet).
+
+    A restart after a gap keeps ``mag_ref``, ``acc_held`` and ``mag_held`` (they belong to
+    the sensors and the field, not to the orientation).
 
     Input policy (:mod:`margtrack.estimator.screening`): the kernel sees screened samples;
     an unusable accelerometer or magnetometer arrives as the zero vector and only its
-    correction is skipped. After a gap the filter restarts from the TRIAD orientation of
-    the first usable sample (with β as it is: it re-converges within a few seconds), keeping
-    the held samples and the ``fixed`` field reference.
+    correction is skipped. Each sensor starts at its first usable sample (TRIAD, or gravity
+    alone without a usable field or with ``use_mag=False``, which drops a given field
+    before the screening) and after a gap restarts from the first usable sample again (with
+    β as it is: it re-converges within a few seconds), keeping the held samples and the
+    ``fixed`` field reference. The whole per-sample path (screening, clock, starts, the
+    step) is one compiled call (:mod:`margtrack.estimator.compiled`).
 
     Live use with sensors at different rates: :meth:`update_acc`, :meth:`update_mag`,
     :meth:`update_gyr` (zero-order hold); offline: :func:`align_to_gyro` (interpolation).
@@ -223,66 +191,40 @@ class Gradient(LiveSensors, Estimator[GradientParams, GradientState]):
     is the same TRIAD orientation). ahrs skips the whole update when the gyro reads exactly
     zero; this filter still corrects then. The recursion runs in NWU whatever the output
     frame, because the unit-norm form of the objective makes the normalised step depend on
-    the earth frame (see :func:`margtrack.kernels.gradient.gradient_filter`).
+    the earth frame (see :func:`margtrack.kernels.gradient._step`).
     """
 
     name = "gradient"
     params_type = GradientParams
-    kept_on_restart = ("acc_held", "mag_held", "mag_ref")
+    kernel = kernel
+    state_layout: ClassVar[Mapping[str, tuple[int, int]]] = {
+        "quat_nwu": (kernel.G_Q, 4),
+        "mag_ref": (kernel.G_MAG_REF, 2),
+        "acc_held": (kernel.G_ACC_HELD, 3),
+        "mag_held": (kernel.G_MAG_HELD, 3),
+    }
+    outputs_layout = (
+        ("euler_rad", 3),
+        ("gravity_body_m_s2", 3),
+        ("lin_acc_earth_m_s2", 3),
+        ("ignored", 1),
+    )
 
-    def _new_state(self, quat0: Array) -> GradientState:
-        n = quat0.shape[0]
-        return GradientState(
-            quat=np.array(quat0, dtype=np.float64),
-            acc_held=np.zeros((n, 3)),
-            mag_held=np.zeros((n, 3)),
-            mag_ref=np.zeros((n, 2)),
-        )
-
-    def _initial_quat(self, acc0: Array, mag0: Array | None) -> Array:
-        return super()._initial_quat(acc0, mag0 if self._params.use_mag else None)
-
-    def _process(
-        self,
-        state: GradientState,
-        gyr: Array | None,
-        acc: Array,
-        mag: Array | None,
-        dt: Array,
-    ) -> tuple[Array, dict[str, NDArray[Any]]]:
-        assert gyr is not None  # guaranteed by uses_gyr; narrows the type
+    def _coefficients(self) -> Array:
         p = self._params
-        n_sensors, n = acc.shape[0], acc.shape[1]
-        has_mag = mag is not None and p.use_mag
-        quat = np.empty((n_sensors, n, 4))
-        euler = np.empty((n_sensors, n, 3))
-        gravity = np.empty((n_sensors, n, 3))
-        lin_acc = np.empty((n_sensors, n, 3))
-        flags = np.empty((n_sensors, n), dtype=np.int8)
-        kernel.gradient_filter(
-            state.quat, state.mag_ref, _read_only(gyr), _read_only(acc),
-            _read_only(mag if (has_mag and mag is not None) else np.zeros((n_sensors, 1, 3))),
-            has_mag, _read_only(dt), p.beta, _FROM_NWU[p.frame], frames.up(p.frame),
-            MAG_OBJECTIVES[p.mag_objective], p.integration == "exact", p.gravity_m_s2,
-            quat, euler, gravity, lin_acc, flags,
-        )
-        state.acc_held[...] = acc[:, -1]
-        if mag is not None:
-            state.mag_held[...] = mag[:, -1]
-        outputs: dict[str, NDArray[Any]] = {
-            "euler_rad": euler,
-            "gravity_body_m_s2": gravity,
-            "lin_acc_earth_m_s2": lin_acc,
-            "ignored": flags,
-        }
-        return quat, outputs
+        coef = np.zeros(kernel.N_COEF)
+        coef[kernel.C_BETA] = p.beta
+        coef[kernel.C_MAG_MODE] = MAG_OBJECTIVES[p.mag_objective]
+        coef[kernel.C_EXACT] = 1.0 if p.integration == "exact" else 0.0
+        coef[kernel.C_GRAVITY] = p.gravity_m_s2
+        coef[kernel.C_USE_MAG] = 1.0 if p.use_mag else 0.0
+        coef[kernel.C_TO_FRAME : kernel.C_TO_FRAME + 4] = _FROM_NWU[p.frame]
+        coef[kernel.C_UP : kernel.C_UP + 3] = frames.up(p.frame)
+        return coef
 
-    def _method_flags(self, outputs: Mapping[str, NDArray[Any]]) -> NDArray[np.uint16] | None:
-        """``ignored`` in the flag schema: ``ACC_IGNORED`` → ``Flag.ACC_IGNORED``,
-        ``MAG_REJECTED`` → ``Flag.MAG_IGNORED``.
-
-        A zero field is the screening's sentinel, already flagged with its reason
-        (MAG_IGNORED, or MAG_DISTURBED alone), so the kernel's ``MAG_IGNORED`` bit is not
-        mapped; what the filter adds is the usable field it could not use.
-        """
-        return _SCHEMA[outputs["ignored"]]
+    def _run_arrays(self, *args: Any, **kwargs: Any) -> Estimate:
+        est = super()._run_arrays(*args, **kwargs)
+        # the kernel writes the ``ignored`` bits as a float column: back to int8 (S, N)
+        outputs: dict[str, NDArray[Any]] = dict(est.outputs)
+        outputs["ignored"] = outputs["ignored"][..., 0].astype(np.int8)
+        return dataclasses.replace(est, outputs=outputs)
