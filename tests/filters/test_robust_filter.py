@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from margtrack import quaternion as quat
 from margtrack import sim
 from margtrack.bench.metrics import error_series
+from margtrack.estimator import Flag
 from margtrack.estimators.triad import Triad
 from margtrack.filters.robust import Robust, RobustParams
 
@@ -22,7 +25,7 @@ def test_noise_free_motion_raises_no_disturbance_flag():
     # the estimate against the truth in both frames is tests/test_registry_truth.py's
     traj = sim.random_motion(20.0, 100.0, seed=4, max_rate_deg_s=150.0, bandwidth_hz=1.0)
     est = Robust().run(sim.simulate(traj, seed=0))
-    assert not est.outputs["mag_disturbed"].any()
+    assert not np.any(est.flags & Flag.MAG_DISTURBED)
 
 
 def test_rest_with_gyro_bias_learns_the_bias_and_flags_rest():
@@ -33,7 +36,7 @@ def test_rest_with_gyro_bias_learns_the_bias_and_flags_rest():
         seed=2,
     )
     est = Robust().run(rec)
-    rest = est.outputs["rest"]
+    rest = (est.flags & Flag.REST) != 0
     # still from the start: at rest once rest_min_s (1.5 s) has passed
     assert not rest[:140].any() and rest[160:].all()
     learned = est.outputs["gyr_bias_rad_s"][-1]
@@ -52,7 +55,7 @@ def test_bias_is_learned_in_motion_from_the_inclination_correction():
     traj = sim.random_motion(120.0, 100.0, seed=3, max_rate_deg_s=90.0, bandwidth_hz=0.5)
     rec = sim.simulate(traj, gyr_errors=sim.SensorErrors(bias=bias), seed=1)
     est = Robust(bias_motion_noise_deg_s=1.0).run(rec)
-    assert not est.outputs["rest"].any()
+    assert not np.any(est.flags & Flag.REST)
     learned = np.degrees(est.outputs["gyr_bias_rad_s"][-1])
     # the correction comes through the accelerometer low-pass, whose lag biases the
     # measurement while the sensor turns: the bias is learned to about 0.1 deg/s, from an
@@ -88,7 +91,7 @@ def _magnet_pass_recording(peak_ut):
 def test_magnet_passing_by_is_detected_rejected_and_left_behind():
     rec = _magnet_pass_recording(60.0)
     est = Robust().run(rec)
-    flags = est.outputs["mag_disturbed"]
+    flags = (est.flags & Flag.MAG_DISTURBED) != 0
     window = (rec.t > 25.0) & (rec.t < 35.0)
     assert flags[window].mean() > 0.5
     assert not flags[(rec.t < 24.0) | (rec.t > 36.0)].any()
@@ -126,30 +129,80 @@ def test_variable_sample_intervals():
     assert np.degrees(error_series(est.quat, rec.quat_true).total_rad.max()) < 0.01
 
 
+def _stepped(est, gyr, acc, mag, t):
+    """Per-sample ``update`` calls: orientations, flags and the bias accessors."""
+    q, flags, bias, sd = [], [], [], []
+    for i in range(len(t)):
+        q.append(est.update(gyr[i], acc[i], mag[i], dt=None if i == 0 else t[i] - t[i - 1]))
+        flags.append(est.flags)
+        bias.append(est.gyr_bias_rad_s)
+        sd.append(est.gyr_bias_sd_rad_s)
+    return np.array(q), np.array(flags), np.array(bias), np.array(sd)
+
+
 def test_update_equals_run_and_halves_join_through_state():
     rec = sim.simulate_motion("random", duration_s=8.0, seed=3)
-    whole = Robust().run(rec)
-    live = Robust()
-    stepped = np.array(
-        [
-            live.update(
-                rec.gyr[i], rec.acc[i], rec.mag[i], dt=None if i == 0 else rec.t[i] - rec.t[i - 1]
-            )
-            for i in range(rec.n_samples)
-        ]
-    )
-    np.testing.assert_allclose(stepped, whole.quat, atol=1e-12)
+    gyr, acc, mag, t = rec.gyr.copy(), rec.acc.copy(), rec.mag.copy(), rec.t.copy()
+    # unusable first samples, a zero acc and field stretch and a 1 s gap (a restart)
+    acc[:20], mag[:35], acc[300:320], mag[400:450] = 0.0, 0.0, 0.0, 0.0
+    t[500:] += 1.0
+    whole = Robust().run(gyr=gyr, acc=acc, mag=mag, t=t)
+    # (it starts at sample 20 from gravity alone, its heading from the first field)
+    assert whole.flags[19] & Flag.INITIALISING and not whole.flags[20] & Flag.INITIALISING
+    assert whole.flags[500] & Flag.GAP
+    q, flags, bias, sd = _stepped(Robust(), gyr, acc, mag, t)
+    np.testing.assert_allclose(q, whole.quat, atol=1e-12)
+    np.testing.assert_array_equal(flags[:, 0], whole.flags)
+    # the accessors read the state the outputs were written from
+    np.testing.assert_allclose(bias[:, 0], whole.outputs["gyr_bias_rad_s"], atol=1e-15)
+    np.testing.assert_allclose(sd[:, 0], whole.outputs["gyr_bias_sd_rad_s"], atol=1e-15)
     first = Robust()
-    a = first.run(rec.slice(0, 333))
+    a = first.run(gyr=gyr[:333], acc=acc[:333], mag=mag[:333], t=t[:333])
     second = Robust()
     second.state = first.state
-    b = second.run(rec.slice(333))
+    b = second.run(gyr=gyr[333:], acc=acc[333:], mag=mag[333:], t=t[333:])
     np.testing.assert_allclose(np.concatenate([a.quat, b.quat]), whole.quat, atol=1e-12)
-    np.testing.assert_allclose(
-        np.concatenate([a.outputs["gyr_bias_rad_s"], b.outputs["gyr_bias_rad_s"]]),
-        whole.outputs["gyr_bias_rad_s"],
-        atol=1e-15,
+    for key in ("quat6d", "gyr_bias_rad_s", "gyr_bias_sd_rad_s"):
+        joined = np.concatenate([a.outputs[key], b.outputs[key]])
+        np.testing.assert_allclose(joined, whole.outputs[key], atol=1e-12, err_msg=key)
+
+
+def test_update_of_several_sensors_equals_their_run():
+    recs = [sim.simulate_motion("random", duration_s=4.0, seed=s) for s in range(3)]
+    gyr, acc, mag = (np.stack([getattr(r, k) for r in recs]) for k in ("gyr", "acc", "mag"))
+    acc[1, :40] = 0.0  # sensor 1 starts 40 samples later, at its own first usable sample
+    t = recs[0].t
+    whole = Robust(frame="NED").run(gyr=gyr, acc=acc, mag=mag, t=t)
+    live = Robust(frame="NED")
+    q = np.array(
+        [
+            live.update(gyr[:, i], acc[:, i], mag[:, i], dt=None if i == 0 else t[i] - t[i - 1])
+            for i in range(len(t))
+        ]
     )
+    np.testing.assert_allclose(q, whole.quat.transpose(1, 0, 2), atol=1e-12)
+    assert np.all(whole.flags[1, :40] & Flag.INITIALISING) and not whole.flags[1, 40:].any()
+    # each sensor's series is its own run (sensor 1's start sample integrates nothing)
+    alone = Robust(frame="NED").run(gyr=gyr[1, 40:], acc=acc[1, 40:], mag=mag[1, 40:], t=t[40:])
+    np.testing.assert_allclose(whole.quat[1, 40:], alone.quat, atol=1e-12)
+
+
+def test_a_new_time_constant_takes_effect_at_the_next_sample():
+    # the interval's gains live in the state: a parameter change must renew them
+    rec = sim.simulate(sim.static(4.0, 100.0), seed=3)  # perfect sensors, true heading 0
+    offset = math.radians(30.0)
+    est = Robust(converge_s=0.0, rate_hz=100.0)
+    est.reset(quat.from_axis_angle([0.0, 0.0, 1.0], offset))
+    first = est.run(rec.slice(0, 200))
+    est.set_params(tau_mag_s=2.0)
+    second = est.run(rec.slice(200))
+    err = np.abs(np.concatenate([
+        error_series(first.quat, rec.quat_true[:200]).heading_rad,
+        error_series(second.quat, rec.quat_true[200:]).heading_rad,
+    ]))  # fmt: skip
+    # each sample takes 1 - exp(-dt / tau) of the heading error away (20 s, then 2 s)
+    np.testing.assert_allclose(err[199], offset * math.exp(-0.01 / 20.0) ** 199, rtol=1e-9)
+    np.testing.assert_allclose(err[299], err[199] * math.exp(-0.01 / 2.0) ** 100, rtol=1e-9)
 
 
 def test_reset_q0_is_the_first_output():

@@ -13,7 +13,8 @@ from margtrack import quaternion as quat
 from margtrack import sim
 from margtrack.bench.metrics import error_series
 from margtrack.estimator import Flag, Params, initial_orientation, specs
-from margtrack.filters.robust import Robust, RobustParams, RobustState
+from margtrack.filters.robust import Robust, RobustParams
+from margtrack.kernels import robust as kernel
 
 pytestmark = pytest.mark.kernel
 
@@ -49,22 +50,22 @@ def test_a_zero_accelerometer_sample_does_not_reach_the_low_pass(rec):
     # no measurement: the low-pass (output and states), the inclination and the rest
     # detector's accelerometer mean are exactly as they were (feeding the zero would have
     # pulled the low-pass towards zero by its gain, about 1e-5 of it per sample)
-    for name in ("acc_lp_m_s2", "acc_lp_bw", "q_acc", "acc_rest_m_s2", "bias_rad_s"):
-        np.testing.assert_array_equal(getattr(after, name), getattr(before, name), err_msg=name)
+    for name in ("acc_lp_m_s2", "acc_lp_bw", "q_acc", "acc_rest_m_s2", "gyr_bias_rad_s"):
+        np.testing.assert_array_equal(after.get(name), before.get(name), err_msg=name)
     # the gyro still integrates: q_gyr moved by the (bias-corrected) rate
-    w = rec.gyr[300] - before.bias_rad_s[0]
-    expected = quat.integrate(before.q_gyr[0], w, DT)
-    assert quat.angle_between(after.q_gyr[0], expected) < 1e-12
-    assert quat.angle_between(after.q_gyr[0], before.q_gyr[0]) > 1e-4
+    w = rec.gyr[300] - before.get("gyr_bias_rad_s")[0]
+    q_before, q_after = before.get("q_gyr")[0], after.get("q_gyr")[0]
+    assert quat.angle_between(q_after, quat.integrate(q_before, w, DT)) < 1e-12
+    assert quat.angle_between(q_after, q_before) > 1e-4
 
 
 def test_a_zero_field_sample_does_not_reach_the_heading(rec):
     before, after, flags = _after_one_update(rec, 300, mag=np.zeros(3))
     assert flags & Flag.MAG_IGNORED
     for name in ("heading_rad", "heading_n", "mag_norm_ref", "mag_dip_ref_rad", "mag_cand_s"):
-        np.testing.assert_array_equal(getattr(after, name), getattr(before, name), err_msg=name)
+        np.testing.assert_array_equal(after.get(name), before.get(name), err_msg=name)
     # the inclination is still corrected
-    assert not np.array_equal(after.acc_lp_m_s2, before.acc_lp_m_s2)
+    assert not np.array_equal(after.get("acc_lp_m_s2"), before.get("acc_lp_m_s2"))
 
 
 def test_a_skipped_sample_leaves_the_whole_state_as_it_was(rec):
@@ -75,36 +76,58 @@ def test_a_skipped_sample_leaves_the_whole_state_as_it_was(rec):
     assert f.flags[0] & Flag.CLOCK
     np.testing.assert_array_equal(q, before.quat[0])
     after = f.state
-    for field in dataclasses.fields(RobustState):
-        value = getattr(after, field.name)
-        if isinstance(value, np.ndarray):
-            np.testing.assert_array_equal(value, getattr(before, field.name), err_msg=field.name)
+    for name in Robust.state_layout:
+        np.testing.assert_array_equal(after.get(name), before.get(name), err_msg=name)
+    # and the rest of the filter's row (its interval gains) too
+    method = slice(kernel.R_Q_GYR, kernel.N_ROW)
+    np.testing.assert_array_equal(after.rows[:, method], before.rows[:, method])
 
 
 def test_kernel_extreme_screened_samples_never_give_nan():
+    # the filter's own step, fed directly what the screening may pass on (no screening)
     rng = np.random.default_rng(7)
     n = 600
-    gyr = rng.uniform(-30.0, 30.0, size=(1, n, 3))  # within the default 2000 deg/s range
-    acc = rng.normal(size=(1, n, 3)) * rng.choice([1e-3, 1.0, 150.0], size=(1, n, 1))
-    acc[0, ::7] = 0.0  # the screening's "no measurement"
-    mag = rng.normal(size=(1, n, 3)) * rng.choice([1e-300, 1e-3, 50.0, 1e300], size=(1, n, 1))
-    mag[0, ::5] = 0.0
-    mag[0, 3::11] = acc[0, 3::11] * 4.0  # parallel to the accelerometer
+    gyr = rng.uniform(-30.0, 30.0, size=(n, 3))  # within the default 2000 deg/s range
+    acc = rng.normal(size=(n, 3)) * rng.choice([1e-3, 1.0, 150.0], size=(n, 1))
+    acc[::7] = 0.0  # the screening's "no measurement"
+    mag = rng.normal(size=(n, 3)) * rng.choice([1e-300, 1e-3, 50.0, 1e300], size=(n, 1))
+    mag[::5] = 0.0
+    mag[3::11] = acc[3::11] * 4.0  # parallel to the accelerometer
     dt = rng.choice([0.0, DT, 0.25], size=n)
-    acc[0, 300], mag[0, 300], dt[300] = 0.0, 0.0, 0.0  # a no-op sample
-    f = Robust()
-    state = f._new_state(quat.normalize(rng.normal(size=(1, 4))))
+    acc[300], mag[300], dt[300] = 0.0, 0.0, 0.0  # a no-op sample
+    coef = RobustParams().coefficients()
+    row = np.zeros(kernel.N_ROW)
+    kernel._start(row, coef, True, *quat.normalize(rng.normal(size=4)))
+    q, x = np.zeros((n, 4)), np.zeros((n, kernel.N_OUT))
     with np.errstate(over="ignore", under="ignore"):  # numpy scalars when the JIT is off
-        q, out = f._process(state, gyr, acc, mag, dt)
-    assert np.isfinite(q).all() and np.isfinite(out["quat6d"]).all()
-    assert np.isfinite(out["gyr_bias_rad_s"]).all() and np.isfinite(out["gyr_bias_sd_rad_s"]).all()
-    np.testing.assert_allclose(np.linalg.norm(q[0], axis=1), 1.0, atol=1e-12)
-    np.testing.assert_array_equal(q[0, 300], q[0, 299])
-    for field in dataclasses.fields(RobustState):
-        value = getattr(state, field.name)
-        if isinstance(value, np.ndarray) and value.dtype.kind == "f":
-            unset_ok = field.name in ("mag_dip_ref_rad", "mag_cand_dip_rad")  # nan: not yet
-            assert (np.isfinite(value) | unset_ok).all(), field.name
+        for i in range(n):
+            kernel._step(row, coef, dt[i], *gyr[i], *acc[i], *mag[i], True, q[i], x[i])
+            unset = (kernel.R_MAG_DIP_REF, kernel.R_CAND_DIP)  # nan: not known yet
+            assert np.isfinite(np.delete(row, unset)).all(), i
+    assert np.isfinite(q).all() and np.isfinite(x).all()
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_array_equal(q[300], q[299])
+
+
+def test_before_its_first_usable_sample_a_sensor_holds_and_knows_its_prior(rec):
+    acc = rec.acc.copy()
+    acc[:10] = 0.0  # nothing to start from
+    f = Robust(bias_sigma_init_deg_s=0.3, mag_norm_ref=FIELD_UT, frame="NED")
+    est = f.run(gyr=rec.gyr[:10], acc=acc[:10], mag=rec.mag[:10], t=rec.t[:10])
+    assert np.all(est.flags & Flag.INITIALISING)
+    # held: the identity, the 6-D output too; the bias as known before any sample
+    np.testing.assert_array_equal(est.quat, np.tile([1.0, 0.0, 0.0, 0.0], (10, 1)))
+    np.testing.assert_array_equal(est.outputs["quat6d"], est.quat)
+    np.testing.assert_array_equal(est.outputs["gyr_bias_rad_s"], 0.0)
+    np.testing.assert_allclose(est.outputs["gyr_bias_sd_rad_s"], math.radians(0.3), rtol=1e-15)
+    np.testing.assert_allclose(f.gyr_bias_sd_rad_s, math.radians(0.3), rtol=1e-15)
+    assert f.state.get("mag_norm_ref")[0, 0] == FIELD_UT
+    # the first usable sample starts it (TRIAD), its 6-D output in the same frame
+    est = f.run(gyr=rec.gyr[10:12], acc=acc[10:12], mag=rec.mag[10:12], t=rec.t[10:12])
+    q0 = initial_orientation(acc[10][None], rec.mag[10][None], "NED")[0]
+    assert not est.flags[0] & Flag.INITIALISING
+    assert quat.angle_between(est.quat[0], q0) < 1e-12
+    assert quat.angle_between(est.outputs["quat6d"][0], q0) < 1e-12  # heading still 0
 
 
 # -- its own disturbance rejection -----------------------------------------------------------
@@ -119,13 +142,15 @@ def test_the_filter_rejects_disturbances_itself_with_its_tighter_tolerances():
     mag[800:1000] *= 1.15  # beyond robust's 10 %, within the screening's 25 %
     mag[1200:1400] *= 3.0  # beyond both: still passed through to the filter
     est = Robust().run(gyr=rec.gyr, acc=rec.acc, mag=mag, t=rec.t)
-    disturbed = est.outputs["mag_disturbed"]
+    disturbed = (est.flags & Flag.MAG_DISTURBED) != 0
     assert disturbed[800:1000].all() and disturbed[1200:1400].all()
     assert not disturbed[:800].any() and not disturbed[1000:1200].any()
-    # the schema's flag is the filter's own, and the screening ignored nothing
-    np.testing.assert_array_equal((est.flags & Flag.MAG_DISTURBED) != 0, disturbed)
-    np.testing.assert_array_equal((est.flags & Flag.REST) != 0, est.outputs["rest"])
+    # the filter's own flag: the screening ignored nothing
     assert not np.any(est.flags & Flag.MAG_IGNORED)
+
+
+def _disturbed(est):
+    return (est.flags & Flag.MAG_DISTURBED) != 0
 
 
 def test_a_given_field_reference_is_the_initial_reference():
@@ -133,8 +158,8 @@ def test_a_given_field_reference_is_the_initial_reference():
     mag = rec.mag.copy()
     mag[:500] *= 1.3  # starts in a disturbed field
     arrays = {"gyr": rec.gyr, "acc": rec.acc, "mag": mag, "t": rec.t}
-    learned = Robust().run(**arrays).outputs["mag_disturbed"]
-    given = Robust(mag_norm_ref=FIELD_UT).run(**arrays).outputs["mag_disturbed"]
+    learned = _disturbed(Robust().run(**arrays))
+    given = _disturbed(Robust(mag_norm_ref=FIELD_UT).run(**arrays))
     # learned from the first sample, the disturbed field is the reference and the true one
     # looks disturbed; given, it is the other way round
     assert not learned[:500].any() and learned[500:].all()
@@ -144,12 +169,12 @@ def test_a_given_field_reference_is_the_initial_reference():
     tilt = quat.from_axis_angle([1.0, 0.0, 0.0], math.radians(20.0))
     tilted[:500] = quat.rotate(tilt, rec.mag[:500])
     arrays["mag"] = tilted
-    given_dip = Robust(mag_dip_ref_deg=60.0).run(**arrays).outputs["mag_disturbed"]
+    given_dip = _disturbed(Robust(mag_dip_ref_deg=60.0).run(**arrays))
     assert given_dip[1:500].all() and not given_dip[500:].any()
     # the unit of the field is the data's: in nT the same reference is 1000 times larger
     arrays["mag"] = mag * 1000.0
     in_nt = Robust(mag_norm_ref=FIELD_UT * 1000.0).run(**arrays)
-    np.testing.assert_array_equal(in_nt.outputs["mag_disturbed"], given)
+    np.testing.assert_array_equal(_disturbed(in_nt), given)
 
 
 # -- restarts ------------------------------------------------------------------------------
@@ -202,8 +227,8 @@ def test_a_restart_keeps_the_field_reference_and_a_disturbed_start_is_no_heading
     est = Robust().run(**arrays)
     # the reference learned before the gap is kept: the new field is a disturbance from
     # the first sample after the gap (relearning it would have accepted it)
-    assert est.outputs["mag_disturbed"][start : start + 1000].all()
-    assert not est.outputs["mag_disturbed"][start + 1000 :].any()
+    assert _disturbed(est)[start : start + 1000].all()
+    assert not _disturbed(est)[start + 1000 :].any()
     heading = np.degrees(np.abs(error_series(est.quat, gapped.quat_true).heading_rad))
     # the restart's TRIAD took the magnet's heading, atan2(40, 25) = 58 deg off
     assert heading[start] > 50.0

@@ -23,30 +23,33 @@ Built from the seeds' ideas and what users of current filters expect:
 A restart after a gap keeps what the filter knows of the sensor (gyro bias, its variance,
 the field reference) and starts the orientation, low-passes and rest detector afresh.
 
-Outputs: ``quat`` (9-D with a magnetometer, else 6-D), ``quat6d`` (always, heading free),
-``gyr_bias_rad_s``, ``gyr_bias_sd_rad_s``, ``rest`` and ``mag_disturbed`` (bool (S, N);
-method detail kept for now: the same information is in ``Estimate.flags`` as
-``Flag.REST`` and ``Flag.MAG_DISTURBED``).
+Outputs: ``quat`` (9-D with a magnetometer, else 6-D), ``quat6d`` (always, heading free,
+output frame), ``gyr_bias_rad_s`` and ``gyr_bias_sd_rad_s`` (rad/s, body axes); rest and
+rejected field disturbances are the flags ``Flag.REST`` and ``Flag.MAG_DISTURBED`` of
+``Estimate.flags``.
+
+The whole per-sample path (screening, (re)starts, the filter) is one compiled call
+(:mod:`margtrack.estimator.compiled`, kernel ``kernels/robust.py``), so ``update`` costs
+about as much as one sample of ``run``.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
-from margtrack import frames
-from margtrack.estimator import Estimator, Params, State, param
+from margtrack.estimator import Params, param
+from margtrack.estimator.compiled import CompiledEstimator, CompiledState
 from margtrack.kernels import robust as kernel
 
 Array = NDArray[np.float64]
 
-__all__ = ["Robust", "RobustParams", "RobustState"]
-
-_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+__all__ = ["Robust", "RobustParams"]
 
 
 @dataclass(frozen=True)
@@ -141,193 +144,58 @@ class RobustParams(Params):
         c[kernel.C_MAG_REF_TAU] = self.mag_reference_tau_s
         c[kernel.C_NED] = 1.0 if self.frame == "NED" else 0.0
         c[kernel.C_CONVERGE] = self.converge_s
+        c[kernel.C_BIAS_SIGMA0] = rad(self.bias_sigma_init_deg_s)
+        c[kernel.C_MAG_NORM_REF0] = self.mag_norm_ref or 0.0
+        c[kernel.C_MAG_DIP_REF0] = (
+            math.nan if self.mag_dip_ref_deg is None else rad(self.mag_dip_ref_deg)
+        )
         return c
 
 
-@dataclass(kw_only=True)
-class RobustState(State):
-    """State of S robust filters (arrays with the sensor first; ENU inside, see the kernel).
+class Robust(CompiledEstimator[RobustParams]):
+    """margtrack's robust MARG filter (``--method robust``); see the module docstring.
 
-    Orientation, ``q9 = q_z(heading_rad) ⊗ q_acc ⊗ q_gyr``:
-
-    q_gyr : (S, 4) body to the strapdown frame I (gyro integration; identity at a start).
-    q_acc : (S, 4) I to the level frame (the inclination; the whole initial orientation
-        at a start).
-    heading_rad : (S,) rotation about up from the level frame to ENU, rad.
-
-    Gyro bias (kept on restart):
-
-    bias_rad_s : (S, 3) gyro bias estimate, rad/s, body axes.
-    bias_var_rad2_s2 : (S, 3) its variance per axis, (rad/s)².
-
-    Inclination low-pass (accelerometer in frame I):
-
-    acc_lp_m_s2 : (S, 3) its output, m/s².
-    acc_lp_bw : (S, 3, 2) Butterworth states (s1, s2) per axis, m/s² (transposed direct
-        form II; valid in stage ``LP_FILTER``).
-    acc_lp_stage : (S,) int8 ``kernel.LP_EMPTY`` (no usable sample since the start),
-        ``LP_FIRST`` (holds the first sample; the filter states are set to its steady
-        state at the next step), ``LP_FILTER`` (running).
-
-    Start-up:
-
-    since_start_s : (S,) time since the start (first sample or restart), s.
-    heading_n : (S,) int64 heading measurements averaged since the start (the initial
-        orientation counts as one unless the start had no usable field).
-
-    Rest detector:
-
-    gyr_rest_rad_s : (S, 3) gyro low-passed with ``rest_tau_s``, rad/s.
-    acc_rest_m_s2 : (S, 3) accelerometer low-passed with ``rest_tau_s``, m/s².
-    still_s : (S,) how long the sensor has been still, s.
-
-    Field reference tracker (kept on restart; the field's unit as given):
-
-    mag_norm_ref : (S,) the field norm taken as undisturbed (0: from the next sample).
-    mag_dip_ref_rad : (S,) the dip taken as undisturbed, rad, positive down (nan: from
-        the next sample).
-    mag_cand_norm, mag_cand_dip_rad : (S,) a new steady field's norm and dip, candidate
-        for the reference while the field disagrees with it.
-    mag_cand_s : (S,) how long that candidate has been steady, s.
+    State (:class:`~margtrack.estimator.compiled.CompiledState`): one row per sensor, its
+    parts named by ``state_layout`` (read them with ``state.get(name)``; the kernel's
+    module docstring gives the meaning of each). A restart after a gap keeps the bias,
+    its variance and the field reference; before a sensor's first start they are set
+    from the parameters (``bias_sigma_init_deg_s``, ``mag_norm_ref``,
+    ``mag_dip_ref_deg``).
     """
-
-    q_gyr: Array
-    q_acc: Array
-    heading_rad: Array
-    bias_rad_s: Array
-    bias_var_rad2_s2: Array
-    acc_lp_m_s2: Array
-    acc_lp_bw: Array
-    acc_lp_stage: NDArray[np.int8]
-    since_start_s: Array
-    heading_n: NDArray[np.int64]
-    gyr_rest_rad_s: Array
-    acc_rest_m_s2: Array
-    still_s: Array
-    mag_norm_ref: Array
-    mag_dip_ref_rad: Array
-    mag_cand_norm: Array
-    mag_cand_dip_rad: Array
-    mag_cand_s: Array
-
-    def copy(self) -> RobustState:
-        """An independent copy: every array (``ready`` too) and the screening's memory.
-
-        Explicit because the generic field loop cost a third of one ``update``.
-        """
-        new = object.__new__(type(self))
-        new.__dict__.update(
-            {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in self.__dict__.items()}
-        )
-        if self.screen is not None:
-            new.screen = self.screen.copy()
-        return new
-
-    def gyr_bias_rad_s(self) -> Array:
-        """(S, 3) the gyro bias estimate, rad/s."""
-        return self.bias_rad_s.copy()
-
-    def gyr_bias_sd_rad_s(self) -> Array:
-        """(S, 3) standard deviation of the bias estimate, rad/s."""
-        return np.sqrt(self.bias_var_rad2_s2)
-
-
-class Robust(Estimator[RobustParams, RobustState]):
-    """margtrack's robust MARG filter (``--method robust``); see the module docstring."""
 
     name = "robust"
     params_type = RobustParams
     rejects_mag_disturbance = True
-    kept_on_restart = (
-        "bias_rad_s",
-        "bias_var_rad2_s2",
-        "mag_norm_ref",
-        "mag_dip_ref_rad",
-        "mag_cand_norm",
-        "mag_cand_dip_rad",
-        "mag_cand_s",
-    )
+    kernel = kernel
+    state_layout: ClassVar[Mapping[str, tuple[int, int]]] = {
+        "q_gyr": (kernel.R_Q_GYR, 4),
+        "q_acc": (kernel.R_Q_ACC, 4),
+        "heading_rad": (kernel.R_HEADING, 1),
+        "gyr_bias_rad_s": (kernel.R_BIAS, 3),
+        "bias_var_rad2_s2": (kernel.R_BIAS_VAR, 3),
+        "gyr_bias_sd_rad_s": (kernel.R_BIAS_SD, 3),
+        "acc_lp_m_s2": (kernel.R_ACC_LP, 3),
+        "acc_lp_bw": (kernel.R_ACC_LP_BW, 6),
+        "acc_lp_stage": (kernel.R_LP_STAGE, 1),
+        "since_start_s": (kernel.R_SINCE_START, 1),
+        "heading_n": (kernel.R_HEADING_N, 1),
+        "gyr_rest_rad_s": (kernel.R_GYR_REST, 3),
+        "acc_rest_m_s2": (kernel.R_ACC_REST, 3),
+        "still_s": (kernel.R_STILL, 1),
+        "mag_norm_ref": (kernel.R_MAG_NORM_REF, 1),
+        "mag_dip_ref_rad": (kernel.R_MAG_DIP_REF, 1),
+        "mag_cand_norm": (kernel.R_CAND_NORM, 1),
+        "mag_cand_dip_rad": (kernel.R_CAND_DIP, 1),
+        "mag_cand_s": (kernel.R_CAND_S, 1),
+    }
+    outputs_layout = (("quat6d", 4), ("gyr_bias_rad_s", 3), ("gyr_bias_sd_rad_s", 3))
 
-    def _new_state(self, quat0: Array) -> RobustState:
-        p = self._params
-        n = quat0.shape[0]
-        var0 = math.radians(p.bias_sigma_init_deg_s) ** 2
-        dip0 = math.nan if p.mag_dip_ref_deg is None else math.radians(p.mag_dip_ref_deg)
-        return RobustState(
-            quat=np.array(quat0, dtype=np.float64),
-            q_gyr=np.tile(_IDENTITY, (n, 1)),
-            q_acc=np.ascontiguousarray(frames.convert(quat0, p.frame, "ENU")),
-            heading_rad=np.zeros(n),
-            bias_rad_s=np.zeros((n, 3)),
-            bias_var_rad2_s2=np.full((n, 3), var0),
-            acc_lp_m_s2=np.zeros((n, 3)),
-            acc_lp_bw=np.zeros((n, 3, 2)),
-            acc_lp_stage=np.full(n, kernel.LP_EMPTY, dtype=np.int8),
-            since_start_s=np.zeros(n),
-            heading_n=np.ones(n, dtype=np.int64),
-            gyr_rest_rad_s=np.zeros((n, 3)),
-            acc_rest_m_s2=np.zeros((n, 3)),
-            still_s=np.zeros(n),
-            mag_norm_ref=np.full(n, p.mag_norm_ref or 0.0),
-            mag_dip_ref_rad=np.full(n, dip0),
-            mag_cand_norm=np.zeros(n),
-            mag_cand_dip_rad=np.full(n, math.nan),
-            mag_cand_s=np.zeros(n),
-        )
+    def _coefficients(self) -> Array:
+        return self._params.coefficients()
 
-    def _process(
-        self,
-        state: RobustState,
-        gyr: Array | None,
-        acc: Array,
-        mag: Array | None,
-        dt: Array,
-    ) -> tuple[Array, dict[str, NDArray[Any]]]:
-        assert gyr is not None  # guaranteed by uses_gyr; narrows the type
-        n_sensors, n = acc.shape[0], acc.shape[1]
-        quat = np.empty((n_sensors, n, 4))
-        quat6 = np.empty((n_sensors, n, 4))
-        bias = np.empty((n_sensors, n, 3))
-        bias_sd = np.empty((n_sensors, n, 3))
-        rest = np.empty((n_sensors, n), dtype=np.bool_)
-        disturbed = np.empty((n_sensors, n), dtype=np.bool_)
-        kernel.robust_filter(
-            self._params.coefficients(),
-            gyr,
-            acc,
-            acc if mag is None else mag,
-            mag is not None,
-            dt,
-            state.q_gyr,
-            state.q_acc,
-            state.heading_rad,
-            state.bias_rad_s,
-            state.bias_var_rad2_s2,
-            state.acc_lp_m_s2,
-            state.acc_lp_bw,
-            state.acc_lp_stage,
-            state.heading_n,
-            state.since_start_s,
-            state.gyr_rest_rad_s,
-            state.acc_rest_m_s2,
-            state.still_s,
-            state.mag_norm_ref,
-            state.mag_dip_ref_rad,
-            state.mag_cand_norm,
-            state.mag_cand_dip_rad,
-            state.mag_cand_s,
-            quat,
-            quat6,
-            bias,
-            bias_sd,
-            rest,
-            disturbed,
-        )
-        state.quat = quat[:, -1].copy()
-        return quat, {
-            "quat6d": quat6,
-            "gyr_bias_rad_s": bias,
-            "gyr_bias_sd_rad_s": bias_sd,
-            "rest": rest,
-            "mag_disturbed": disturbed,
-        }
+    def _new_rows(self, n_sensors: int) -> CompiledState:
+        """Rows of sensors that have seen nothing, with what is known of the sensor (the
+        bias variance, a given field reference) already set."""
+        state = super()._new_rows(n_sensors)
+        kernel.fresh(state.rows, self._coefs)
+        return state

@@ -1,4 +1,4 @@
-"""Kernel of margtrack's robust filter (``filters/robust.py``): one loop over sensors and samples.
+"""Kernel of margtrack's robust filter (``filters/robust.py``), on ``kernels/contract.py``.
 
 Internally everything is computed in ENU; the output is rotated to NED at the end when
 asked. Orientation is factored as ``q9 = q_z(heading) ⊗ q_acc ⊗ q_gyr`` (the factoring of
@@ -22,8 +22,38 @@ during motion stops dominating it after a second or two instead of after several
 of the first seconds was tried: it lets a periodic motion's linear acceleration through,
 49 deg of tilt on a 1 Hz limb swing, against 2 deg from the start sample).
 
-The state is passed as named arrays (see :class:`margtrack.filters.robust.RobustState`);
-the kernel loads each sensor's state into locals, runs its samples and stores it back.
+One sensor's state is a flat row: the contract's slots, then these (offsets from
+``contract.N_CONTRACT``; the Python names are ``Robust.state_layout``'s):
+
+=================  =====  ==============================================================
+``R_Q_GYR``        4      q_gyr: body to the strapdown frame I (identity at a start)
+``R_Q_ACC``        4      q_acc: I to the level frame (the whole orientation at a start)
+``R_HEADING``      1      heading about up from the level frame to ENU, rad
+``R_BIAS``         3      gyro bias estimate, rad/s, body axes (kept on restart)
+``R_BIAS_VAR``     3      its variance per axis, (rad/s)² (kept on restart)
+``R_BIAS_SD``      3      its standard deviation, rad/s (kept; ``sqrt`` of the variance)
+``R_ACC_LP``       3      accelerometer low-passed in I, m/s²
+``R_ACC_LP_BW``    6      Butterworth states (s1, s2) of x, y, z in turn, m/s²
+``R_LP_STAGE``     1      ``LP_EMPTY``, ``LP_FIRST`` or ``LP_FILTER`` (below)
+``R_SINCE_START``  1      time since the start (first sample or restart), s
+``R_HEADING_N``    1      heading measurements averaged since the start
+``R_GYR_REST``     3      gyro low-passed with ``rest_tau_s``, rad/s (rest detector)
+``R_ACC_REST``     3      accelerometer low-passed with ``rest_tau_s``, m/s²
+``R_STILL``        1      how long the sensor has been still, s
+``R_MAG_NORM_REF`` 1      field norm taken as undisturbed (0: from the next sample); kept
+``R_MAG_DIP_REF``  1      dip taken as undisturbed, rad, down positive (nan: next); kept
+``R_CAND_NORM``    1      a new steady field's norm, candidate reference; kept
+``R_CAND_DIP``     1      its dip, rad; kept
+``R_CAND_S``       1      how long the candidate has been steady, s; kept
+``R_GAINS``        11     derived, not state: the interval (s) and the four time
+                          constants the gains were computed for, then k_rest, k_ref,
+                          k_mag and the Butterworth (b0, a1, a2); recomputed when the
+                          interval or a time constant changes
+=================  =====  ==============================================================
+
+``_step`` returns the flag bits ``REST`` and ``MAG_DISTURBED``; its extra outputs
+(``x_out``, ``N_OUT``) are the 6-D quaternion (4, output frame), the bias (3, rad/s) and
+its standard deviation (3, rad/s).
 """
 
 from __future__ import annotations
@@ -32,12 +62,17 @@ import math
 
 from numba import njit
 
+from margtrack.kernels import contract
 from margtrack.kernels._quat import exp_half, mul, normalized
 
-# -- stages of the accelerometer low-pass (``acc_lp_stage``) --------------------------------
+# -- stages of the accelerometer low-pass (``R_LP_STAGE``) ---------------------------------
 LP_EMPTY = 0  # no usable accelerometer sample since the start
 LP_FIRST = 1  # holds the first sample (rotated into I); filter states set at the next step
 LP_FILTER = 2  # the second-order Butterworth low-pass, running
+
+# -- flag bits (margtrack.estimator.flags.Flag) ---------------------------------------------
+MAG_DISTURBED = 64
+REST = 128
 
 # -- parameter layout (``coef`` (N_COEF,)) ------------------------------------------------
 C_TAU_ACC = 0  # s
@@ -56,7 +91,43 @@ C_MAG_NEW_REF_T = 12  # s
 C_MAG_REF_TAU = 13  # s
 C_NED = 14  # 1: output in NED
 C_CONVERGE = 15  # s, longest start-up phase of the heading (0: none)
-N_COEF = 16
+C_BIAS_SIGMA0 = 16  # rad/s, initial standard deviation of the bias
+C_MAG_NORM_REF0 = 17  # initial field norm reference, the field's unit (0: the first sample)
+C_MAG_DIP_REF0 = 18  # initial dip reference, rad (nan: the first sample)
+N_COEF = 19
+
+# -- row layout (module docstring) ----------------------------------------------------------
+R_Q_GYR = contract.N_CONTRACT
+R_Q_ACC = R_Q_GYR + 4
+R_HEADING = R_Q_ACC + 4
+R_BIAS = R_HEADING + 1
+R_BIAS_VAR = R_BIAS + 3
+R_BIAS_SD = R_BIAS_VAR + 3
+R_ACC_LP = R_BIAS_SD + 3
+R_ACC_LP_BW = R_ACC_LP + 3
+R_LP_STAGE = R_ACC_LP_BW + 6
+R_SINCE_START = R_LP_STAGE + 1
+R_HEADING_N = R_SINCE_START + 1
+R_GYR_REST = R_HEADING_N + 1
+R_ACC_REST = R_GYR_REST + 3
+R_STILL = R_ACC_REST + 3
+R_MAG_NORM_REF = R_STILL + 1
+R_MAG_DIP_REF = R_MAG_NORM_REF + 1
+R_CAND_NORM = R_MAG_DIP_REF + 1
+R_CAND_DIP = R_CAND_NORM + 1
+R_CAND_S = R_CAND_DIP + 1
+R_GAINS = R_CAND_S + 1
+# offsets within R_GAINS: the key (interval, time constants), then the gains
+G_DT, G_TAU_ACC, G_TAU_MAG, G_REST_TAU, G_REF_TAU, G_K_REST, G_K_REF, G_K_MAG, G_BW = range(9)
+N_ROW = R_GAINS + G_BW + 3  # (b0, a1, a2) last
+
+# extra outputs (x_out)
+X_QUAT6 = 0
+X_BIAS = 4
+X_BIAS_SD = 7
+N_OUT = 10
+
+_H = math.sqrt(0.5)  # ENU <-> NED: q_ned = (0, h, h, 0) ⊗ q_enu, and back the same way
 
 
 @njit(cache=True, inline="always")
@@ -74,7 +145,14 @@ def _rotate(w, x, y, z, vx, vy, vz):
 
 @njit(cache=True, inline="always")
 def _wrap(angle):
-    return math.atan2(math.sin(angle), math.cos(angle))
+    """An angle in (-3 pi, 3 pi) wrapped to [-pi, pi] (the differences and sums of two
+    wrapped angles here); the same as ``atan2(sin, cos)`` to rounding, at a fraction of
+    its cost."""
+    if angle > math.pi:
+        return angle - 2.0 * math.pi
+    if angle < -math.pi:
+        return angle + 2.0 * math.pi
+    return angle
 
 
 @njit(cache=True, inline="always")
@@ -113,306 +191,339 @@ def _bw_hold(b0, a1, a2, x):
     return (2.0 * b0 - a1) * x + s2, s2
 
 
+@njit(cache=True, inline="always")
+def _gains(row, coef, step):
+    """The interval-dependent gains in ``row[R_GAINS:]``, recomputed when ``step`` or a
+    time constant differs from the ones they were computed for."""
+    g = R_GAINS
+    if (
+        row[g + G_DT] != step
+        or row[g + G_TAU_ACC] != coef[C_TAU_ACC]
+        or row[g + G_TAU_MAG] != coef[C_TAU_MAG]
+        or row[g + G_REST_TAU] != coef[C_REST_TAU]
+        or row[g + G_REF_TAU] != coef[C_MAG_REF_TAU]
+    ):
+        row[g + G_DT] = step
+        row[g + G_TAU_ACC] = coef[C_TAU_ACC]
+        row[g + G_TAU_MAG] = coef[C_TAU_MAG]
+        row[g + G_REST_TAU] = coef[C_REST_TAU]
+        row[g + G_REF_TAU] = coef[C_MAG_REF_TAU]
+        row[g + G_K_REST] = _lowpass_gain(step, coef[C_REST_TAU])
+        row[g + G_K_REF] = _lowpass_gain(step, coef[C_MAG_REF_TAU])
+        row[g + G_K_MAG] = _lowpass_gain(step, coef[C_TAU_MAG])
+        b0, a1, a2 = butterworth_coefficients(step, coef[C_TAU_ACC])
+        row[g + G_BW], row[g + G_BW + 1], row[g + G_BW + 2] = b0, a1, a2
+
+
+@njit(cache=True, inline="always")
+def _sensor(row, coef):
+    """What is known of a sensor before its first sample: bias 0 with the initial
+    variance, the field reference as given (or none)."""
+    var0 = coef[C_BIAS_SIGMA0] ** 2
+    for k in range(3):
+        row[R_BIAS + k] = 0.0
+        row[R_BIAS_VAR + k] = var0
+        row[R_BIAS_SD + k] = math.sqrt(var0)
+    row[R_MAG_NORM_REF] = coef[C_MAG_NORM_REF0]
+    row[R_MAG_DIP_REF] = coef[C_MAG_DIP_REF0]
+    row[R_CAND_NORM] = 0.0
+    row[R_CAND_DIP] = math.nan
+    row[R_CAND_S] = 0.0
+
+
 @njit(cache=True)
-def robust_filter(
-    coef,
-    gyr,
-    acc,
-    mag,
-    has_mag,
-    dt,
-    q_gyr,
-    q_acc,
-    heading,
-    bias,
-    bias_var,
-    acc_lp,
-    acc_lp_bw,
-    acc_lp_stage,
-    heading_n,
-    since_start,
-    gyr_rest,
-    acc_rest,
-    still_t,
-    mag_norm_ref,
-    mag_dip_ref,
-    mag_cand_norm,
-    mag_cand_dip,
-    mag_cand_t,
-    quat_out,
-    quat6_out,
-    bias_out,
-    bias_sd_out,
-    rest_out,
-    mag_dist_out,
-):
-    """Run S filters over N samples.
+def fresh(rows, coefs):
+    """Rows (S, N_ROW) of sensors that have seen nothing: the sensor part (``_sensor``)."""
+    coef = coefs[contract.N_SCOEF :]
+    for s in range(rows.shape[0]):
+        _sensor(rows[s], coef)
 
-    coef (N_COEF,); gyr, acc, mag (S, N, 3) rad/s, m/s², any field unit (mag ignored when
-    ``has_mag`` is False; an all-zero acc or mag sample is no measurement); dt (N,) s
-    (0: nothing to integrate). State, in/out, per sensor (meaning and units in
-    ``RobustState``): q_gyr, q_acc (S, 4), heading (S,), bias, bias_var (S, 3), acc_lp
-    (S, 3), acc_lp_bw (S, 3, 2), acc_lp_stage (S,) int8, heading_n (S,) int64,
-    since_start (S,), gyr_rest, acc_rest (S, 3), still_t (S,), and the field tracker (S,):
-    mag_norm_ref, mag_dip_ref rad (0 / nan: taken from the next sample), mag_cand_norm,
-    mag_cand_dip rad, mag_cand_t s. Outputs (S, N, ...): 9-D (6-D without mag) quaternion in
-    the requested frame, 6-D quaternion, bias rad/s, its standard deviation rad/s, rest
-    flag, mag disturbed flag.
-    """
-    n_sensors, n = gyr.shape[0], gyr.shape[1]
-    ned = coef[C_NED] > 0.5
-    h = math.sqrt(0.5)
-    tau_acc, tau_mag = coef[C_TAU_ACC], coef[C_TAU_MAG]
-    converge = coef[C_CONVERGE]
+
+@njit(cache=True, inline="always")
+def _start(row, coef, first, qw, qx, qy, qz):
+    """(Re)start at q (output frame): the orientation, low-passes, rest detector and
+    start-up afresh; the bias and the field reference only the first time."""
+    if first:
+        _sensor(row, coef)
+    if coef[C_NED] > 0.5:
+        qw, qx, qy, qz = mul(0.0, _H, _H, 0.0, qw, qx, qy, qz)  # to ENU
+    row[R_Q_GYR], row[R_Q_GYR + 1], row[R_Q_GYR + 2], row[R_Q_GYR + 3] = 1.0, 0.0, 0.0, 0.0
+    row[R_Q_ACC], row[R_Q_ACC + 1], row[R_Q_ACC + 2], row[R_Q_ACC + 3] = qw, qx, qy, qz
+    row[R_HEADING] = 0.0
+    for k in range(3):
+        row[R_ACC_LP + k] = 0.0
+        row[R_GYR_REST + k] = 0.0
+        row[R_ACC_REST + k] = 0.0
+    for k in range(6):
+        row[R_ACC_LP_BW + k] = 0.0
+    row[R_LP_STAGE] = LP_EMPTY
+    row[R_SINCE_START] = 0.0
+    row[R_HEADING_N] = 1.0
+    row[R_STILL] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _outputs(row, ned, q6w, q6x, q6y, q6z, x_out):
+    """x_out: the 6-D quaternion (ENU in; to NED when ``ned``), bias and its deviation."""
+    if ned:
+        q6w, q6x, q6y, q6z = mul(0.0, _H, _H, 0.0, q6w, q6x, q6y, q6z)
+    x_out[X_QUAT6], x_out[X_QUAT6 + 1] = q6w, q6x
+    x_out[X_QUAT6 + 2], x_out[X_QUAT6 + 3] = q6y, q6z
+    for k in range(3):
+        x_out[X_BIAS + k] = row[R_BIAS + k]
+        x_out[X_BIAS_SD + k] = row[R_BIAS_SD + k]
+
+
+@njit(cache=True, inline="always")
+def _hold(row, coef, x_out):
+    """Extra outputs of the current state (before the first start: the held quaternion)."""
+    if row[contract.K_STARTS] == 0.0:
+        q = contract.K_Q
+        _outputs(row, False, row[q], row[q + 1], row[q + 2], row[q + 3], x_out)
+        return
+    c, g = R_Q_ACC, R_Q_GYR
+    q6w, q6x, q6y, q6z = mul(row[c], row[c + 1], row[c + 2], row[c + 3],
+                             row[g], row[g + 1], row[g + 2], row[g + 3])  # fmt: skip
+    _outputs(row, coef[C_NED] > 0.5, q6w, q6x, q6y, q6z, x_out)
+
+
+@njit(cache=True, inline="always")
+def _rest(row, coef, step, g0, g1, g2, a0, a1, a2, acc_ok):
+    """Rest detection (small deviation from slow means, small rate) and, at rest, the
+    bias update from the gyro's slow mean; returns whether at rest."""
+    k_rest = row[R_GAINS + G_K_REST]
     bias_max = coef[C_BIAS_MAX]
-    for s in range(n_sensors):
-        # -- load the state into locals ------------------------------------------------
-        gw, gx, gy, gz = q_gyr[s, 0], q_gyr[s, 1], q_gyr[s, 2], q_gyr[s, 3]
-        cw, cx, cy, cz = q_acc[s, 0], q_acc[s, 1], q_acc[s, 2], q_acc[s, 3]
-        head = heading[s]
-        b0_, b1_, b2_ = bias[s, 0], bias[s, 1], bias[s, 2]
-        p0, p1, p2 = bias_var[s, 0], bias_var[s, 1], bias_var[s, 2]
-        l0, l1, l2 = acc_lp[s, 0], acc_lp[s, 1], acc_lp[s, 2]
-        s10, s20 = acc_lp_bw[s, 0, 0], acc_lp_bw[s, 0, 1]
-        s11, s21 = acc_lp_bw[s, 1, 0], acc_lp_bw[s, 1, 1]
-        s12, s22 = acc_lp_bw[s, 2, 0], acc_lp_bw[s, 2, 1]
-        stage = acc_lp_stage[s]
-        hd_n = heading_n[s]
-        t_start = since_start[s]
-        gr0, gr1, gr2 = gyr_rest[s, 0], gyr_rest[s, 1], gyr_rest[s, 2]
-        ar0, ar1, ar2 = acc_rest[s, 0], acc_rest[s, 1], acc_rest[s, 2]
-        t_still = still_t[s]
-        ref_n, ref_d = mag_norm_ref[s], mag_dip_ref[s]
-        cand_n, cand_d, cand_t = mag_cand_norm[s], mag_cand_dip[s], mag_cand_t[s]
-        # gains and low-pass coefficients depend only on the interval: recomputed when it
-        # changes (derived, not state)
-        gains_step = -1.0
-        k_rest = k_ref = k_mag = 0.0
-        bw_step = -1.0
-        bb0 = ba1 = ba2 = 0.0
-        for i in range(n):
-            g0, g1, g2 = gyr[s, i, 0], gyr[s, i, 1], gyr[s, i, 2]
-            a0, a1, a2 = acc[s, i, 0], acc[s, i, 1], acc[s, i, 2]
-            acc_ok = a0 != 0.0 or a1 != 0.0 or a2 != 0.0
-            step = dt[i]
-            rest = False
-            disturbed = False
-            if acc_ok and stage == LP_EMPTY:
-                # the first usable sample since the start: it starts both low-passes (q_gyr
-                # is the identity at a start, so I is the body frame then)
-                l0, l1, l2 = _rotate(gw, gx, gy, gz, a0, a1, a2)
-                ar0, ar1, ar2 = a0, a1, a2
-                stage = LP_FIRST
-                acc_ok = False  # used: not filtered a second time below
-            if step > 0.0 and step != gains_step:
-                k_rest = _lowpass_gain(step, coef[C_REST_TAU])
-                k_ref = _lowpass_gain(step, coef[C_MAG_REF_TAU])
-                k_mag = _lowpass_gain(step, tau_mag)
-                gains_step = step
-            if step > 0.0:
-                t_start += step
-                # -- 1. strapdown: q_gyr ⊗ exp((ω - b) dt / 2) -------------------------
-                dw, dx, dy, dz = exp_half(g0 - b0_, g1 - b1_, g2 - b2_, step)
-                gw, gx, gy, gz = mul(gw, gx, gy, gz, dw, dx, dy, dz)
-                gw, gx, gy, gz = normalized(gw, gx, gy, gz)
+    gr0 = row[R_GYR_REST] + k_rest * (g0 - row[R_GYR_REST])
+    gr1 = row[R_GYR_REST + 1] + k_rest * (g1 - row[R_GYR_REST + 1])
+    gr2 = row[R_GYR_REST + 2] + k_rest * (g2 - row[R_GYR_REST + 2])
+    row[R_GYR_REST], row[R_GYR_REST + 1], row[R_GYR_REST + 2] = gr0, gr1, gr2
+    dev_g = (g0 - gr0) ** 2 + (g1 - gr1) ** 2 + (g2 - gr2) ** 2
+    still = (
+        dev_g < coef[C_REST_GYR] ** 2
+        and abs(gr0) < bias_max
+        and abs(gr1) < bias_max
+        and abs(gr2) < bias_max
+    )
+    if acc_ok:
+        ar0 = row[R_ACC_REST] + k_rest * (a0 - row[R_ACC_REST])
+        ar1 = row[R_ACC_REST + 1] + k_rest * (a1 - row[R_ACC_REST + 1])
+        ar2 = row[R_ACC_REST + 2] + k_rest * (a2 - row[R_ACC_REST + 2])
+        row[R_ACC_REST], row[R_ACC_REST + 1], row[R_ACC_REST + 2] = ar0, ar1, ar2
+        dev_a = (a0 - ar0) ** 2 + (a1 - ar1) ** 2 + (a2 - ar2) ** 2
+        still = still and dev_a < coef[C_REST_ACC] ** 2
+        row[R_STILL] = row[R_STILL] + step if still else 0.0
+    elif not still:
+        row[R_STILL] = 0.0  # without an accelerometer the gyro alone can end rest
+    rest = still and row[R_STILL] >= coef[C_REST_MIN_T]
+    if rest:
+        # at rest the gyro reads its bias: a Kalman update per axis (Ang's bias states, 003)
+        r = coef[C_BIAS_REST_NOISE] ** 2
+        for k in range(3):
+            p = row[R_BIAS_VAR + k]
+            gain = p / (p + r)
+            row[R_BIAS + k] += gain * (row[R_GYR_REST + k] - row[R_BIAS + k])
+            row[R_BIAS_VAR + k] = (1.0 - gain) * p
+    return rest
 
-                # -- 2. bias: random walk between measurements -------------------------
-                walk = coef[C_BIAS_WALK] ** 2 * step
-                p0 += walk
-                p1 += walk
-                p2 += walk
 
-                # -- 3. rest detection: small deviation from slow means, small rate ----
-                gr0 += k_rest * (g0 - gr0)
-                gr1 += k_rest * (g1 - gr1)
-                gr2 += k_rest * (g2 - gr2)
-                dev_g = (g0 - gr0) ** 2 + (g1 - gr1) ** 2 + (g2 - gr2) ** 2
-                still = (
-                    dev_g < coef[C_REST_GYR] ** 2
-                    and abs(gr0) < bias_max
-                    and abs(gr1) < bias_max
-                    and abs(gr2) < bias_max
-                )
-                if acc_ok:
-                    ar0 += k_rest * (a0 - ar0)
-                    ar1 += k_rest * (a1 - ar1)
-                    ar2 += k_rest * (a2 - ar2)
-                    dev_a = (a0 - ar0) ** 2 + (a1 - ar1) ** 2 + (a2 - ar2) ** 2
-                    still = still and dev_a < coef[C_REST_ACC] ** 2
-                    t_still = t_still + step if still else 0.0
-                elif not still:
-                    t_still = 0.0  # without an accelerometer the gyro alone can end rest
-                rest = still and t_still >= coef[C_REST_MIN_T]
-                if rest:
-                    # at rest the gyro reads its bias: a Kalman update per axis
-                    r = coef[C_BIAS_REST_NOISE] ** 2
-                    gain = p0 / (p0 + r)
-                    b0_ += gain * (gr0 - b0_)
-                    p0 = (1.0 - gain) * p0
-                    gain = p1 / (p1 + r)
-                    b1_ += gain * (gr1 - b1_)
-                    p1 = (1.0 - gain) * p1
-                    gain = p2 / (p2 + r)
-                    b2_ += gain * (gr2 - b2_)
-                    p2 = (1.0 - gain) * p2
+@njit(cache=True, inline="always")
+def _incline(row, coef, step, a0, a1, a2, rest):
+    """The low-passed accelerometer in I must point up: q_acc corrected by the shortest
+    arc (004); in motion the applied correction rate is a bias measurement."""
+    gw, gx, gy, gz = row[R_Q_GYR], row[R_Q_GYR + 1], row[R_Q_GYR + 2], row[R_Q_GYR + 3]
+    cw, cx, cy, cz = row[R_Q_ACC], row[R_Q_ACC + 1], row[R_Q_ACC + 2], row[R_Q_ACC + 3]
+    bb0, ba1, ba2 = row[R_GAINS + G_BW], row[R_GAINS + G_BW + 1], row[R_GAINS + G_BW + 2]
+    bw = R_ACC_LP_BW
+    if row[R_LP_STAGE] == LP_FIRST:
+        # start the low-pass steady at the first sample
+        for k in range(3):
+            row[bw + 2 * k], row[bw + 2 * k + 1] = _bw_hold(bb0, ba1, ba2, row[R_ACC_LP + k])
+        row[R_LP_STAGE] = LP_FILTER
+    ex, ey, ez = _rotate(gw, gx, gy, gz, a0, a1, a2)
+    l0, row[bw], row[bw + 1] = _bw_step(bb0, ba1, ba2, row[bw], row[bw + 1], ex)
+    l1, row[bw + 2], row[bw + 3] = _bw_step(bb0, ba1, ba2, row[bw + 2], row[bw + 3], ey)
+    l2, row[bw + 4], row[bw + 5] = _bw_step(bb0, ba1, ba2, row[bw + 4], row[bw + 5], ez)
+    row[R_ACC_LP], row[R_ACC_LP + 1], row[R_ACC_LP + 2] = l0, l1, l2
+    lx, ly, lz = _rotate(cw, cx, cy, cz, l0, l1, l2)
+    norm = math.sqrt(lx * lx + ly * ly + lz * lz)
+    if not norm > 0.0:
+        return
+    lx, ly, lz = lx / norm, ly / norm, lz / norm
+    # shortest arc taking (lx, ly, lz) to up = [0, 0, 1] (004)
+    if lz > -0.999999:
+        sq = math.sqrt(2.0 * (1.0 + lz))
+        rw, rx, ry = 0.5 * sq, ly / sq, -lx / sq
+    else:
+        rw, rx, ry = 0.0, 1.0, 0.0
+    cw, cx, cy, cz = mul(rw, rx, ry, 0.0, cw, cx, cy, cz)
+    cw, cx, cy, cz = normalized(cw, cx, cy, cz)
+    row[R_Q_ACC], row[R_Q_ACC + 1], row[R_Q_ACC + 2], row[R_Q_ACC + 3] = cw, cx, cy, cz
+    if rest:
+        return
+    # the applied correction rate (level frame), seen in the body, is minus the
+    # horizontal bias error: a bias measurement in motion
+    q6w, q6x, q6y, q6z = mul(cw, cx, cy, cz, gw, gx, gy, gz)
+    ux, uy, uz = _rotate(q6w, -q6x, -q6y, -q6z, 2.0 * rx / step, 2.0 * ry / step, 0.0)
+    # only the horizontal components are observed: weight by how much of each body axis
+    # lies in the horizontal plane
+    vx, vy, vz = _rotate(q6w, -q6x, -q6y, -q6z, 0.0, 0.0, 1.0)
+    r = coef[C_BIAS_MOTION_NOISE] ** 2
+    for k, u, v in ((0, ux, vx), (1, uy, vy), (2, uz, vz)):
+        horizontal = 1.0 - v * v
+        if horizontal > 1e-3:
+            p = row[R_BIAS_VAR + k]
+            gain = p * horizontal / (p * horizontal + r)
+            row[R_BIAS + k] -= gain * u
+            row[R_BIAS_VAR + k] = (1.0 - gain * horizontal) * p
 
-                # -- 4. inclination: low-passed acc in I must point up -----------------
-                # (an all-zero sample is no measurement: nothing is fed to the low-pass)
-                if acc_ok:
-                    ex, ey, ez = _rotate(gw, gx, gy, gz, a0, a1, a2)
-                    if step != bw_step:
-                        bb0, ba1, ba2 = butterworth_coefficients(step, tau_acc)
-                        bw_step = step
-                    if stage == LP_FIRST:
-                        # start the low-pass steady at the first sample
-                        s10, s20 = _bw_hold(bb0, ba1, ba2, l0)
-                        s11, s21 = _bw_hold(bb0, ba1, ba2, l1)
-                        s12, s22 = _bw_hold(bb0, ba1, ba2, l2)
-                        stage = LP_FILTER
-                    l0, s10, s20 = _bw_step(bb0, ba1, ba2, s10, s20, ex)
-                    l1, s11, s21 = _bw_step(bb0, ba1, ba2, s11, s21, ey)
-                    l2, s12, s22 = _bw_step(bb0, ba1, ba2, s12, s22, ez)
-                    lx, ly, lz = _rotate(cw, cx, cy, cz, l0, l1, l2)
-                    norm = math.sqrt(lx * lx + ly * ly + lz * lz)
-                    if norm > 0.0:
-                        lx, ly, lz = lx / norm, ly / norm, lz / norm
-                        # shortest arc taking (lx, ly, lz) to up = [0, 0, 1] (004)
-                        if lz > -0.999999:
-                            sq = math.sqrt(2.0 * (1.0 + lz))
-                            rw, rx, ry = 0.5 * sq, ly / sq, -lx / sq
-                        else:
-                            rw, rx, ry = 0.0, 1.0, 0.0
-                        cw, cx, cy, cz = mul(rw, rx, ry, 0.0, cw, cx, cy, cz)
-                        cw, cx, cy, cz = normalized(cw, cx, cy, cz)
-                        if not rest:
-                            # the applied correction rate (level frame), seen in the body,
-                            # is minus the horizontal bias error: a bias measurement in
-                            # motion
-                            q6w, q6x, q6y, q6z = mul(cw, cx, cy, cz, gw, gx, gy, gz)
-                            ux, uy, uz = _rotate(
-                                q6w, -q6x, -q6y, -q6z, 2.0 * rx / step, 2.0 * ry / step, 0.0
-                            )
-                            # only the horizontal components are observed: weight by how
-                            # much of each body axis lies in the horizontal plane
-                            vx, vy, vz = _rotate(q6w, -q6x, -q6y, -q6z, 0.0, 0.0, 1.0)
-                            r = coef[C_BIAS_MOTION_NOISE] ** 2
-                            horizontal = 1.0 - vx * vx
-                            if horizontal > 1e-3:
-                                gain = p0 * horizontal / (p0 * horizontal + r)
-                                b0_ -= gain * ux
-                                p0 = (1.0 - gain * horizontal) * p0
-                            horizontal = 1.0 - vy * vy
-                            if horizontal > 1e-3:
-                                gain = p1 * horizontal / (p1 * horizontal + r)
-                                b1_ -= gain * uy
-                                p1 = (1.0 - gain * horizontal) * p1
-                            horizontal = 1.0 - vz * vz
-                            if horizontal > 1e-3:
-                                gain = p2 * horizontal / (p2 * horizontal + r)
-                                b2_ -= gain * uz
-                                p2 = (1.0 - gain * horizontal) * p2
-                b0_ = min(max(b0_, -bias_max), bias_max)
-                b1_ = min(max(b1_, -bias_max), bias_max)
-                b2_ = min(max(b2_, -bias_max), bias_max)
 
-            # -- 5. heading from the horizontal field --------------------------------
-            q6w, q6x, q6y, q6z = mul(cw, cx, cy, cz, gw, gx, gy, gz)
-            if has_mag:
-                mx, my, mz = _rotate(q6w, q6x, q6y, q6z, mag[s, i, 0], mag[s, i, 1], mag[s, i, 2])
-                m_norm = math.sqrt(mx * mx + my * my + mz * mz)
-                horizontal = math.sqrt(mx * mx + my * my)
-                # an all-zero sample (no measurement) has m_norm == 0: skipped
-                usable = m_norm > 0.0 and horizontal > 1e-6 * m_norm
-                if usable:
-                    dip = math.atan2(-mz, horizontal)
-                    # angle of the horizontal field from north (+y) towards east (+x)
-                    field_heading = math.atan2(mx, my)
-                    if ref_n <= 0.0:
-                        ref_n = m_norm
-                        cand_n = m_norm
-                    if math.isnan(ref_d):
-                        ref_d = dip
-                        cand_d = dip
-                    disturbed = (
-                        abs(m_norm - ref_n) > coef[C_MAG_NORM_TOL] * ref_n
-                        or abs(dip - ref_d) > coef[C_MAG_DIP_TOL]
-                    )
-                    if step > 0.0:
-                        if not disturbed:
-                            ref_n += k_ref * (m_norm - ref_n)
-                            ref_d += k_ref * (dip - ref_d)
-                            cand_n = m_norm
-                            cand_d = dip
-                            cand_t = 0.0
-                            # a fixed time constant: an adaptive (Kalman) gain that grows
-                            # after fast turns or rejected disturbances was measured worse
-                            # on BROAD, re-acquiring still-distorted fields too quickly.
-                            # Start-up: the mean of the measurements while 1/n is larger
-                            k = k_mag
-                            if t_start < converge:
-                                hd_n += 1
-                                k = max(k_mag, 1.0 / hd_n)
-                            error = _wrap(field_heading - head)
-                            head = _wrap(head + k * error)
-                        else:
-                            # a new, steady field: track a candidate and adopt it once it
-                            # has stayed consistent for long enough (a new environment)
-                            steady = (
-                                abs(m_norm - cand_n) < coef[C_MAG_NORM_TOL] * cand_n
-                                and abs(dip - cand_d) < coef[C_MAG_DIP_TOL]
-                            )
-                            if steady:
-                                cand_t += step
-                                cand_n += k_ref * (m_norm - cand_n)
-                                cand_d += k_ref * (dip - cand_d)
-                            else:
-                                cand_t = 0.0
-                                cand_n = m_norm
-                                cand_d = dip
-                            if cand_t > coef[C_MAG_NEW_REF_T]:
-                                ref_n = cand_n
-                                ref_d = cand_d
-                                cand_t = 0.0
-                if t_start == 0.0 and hd_n == 1 and (disturbed or not usable):
-                    # a start without an undisturbed field: its heading is no measurement,
-                    # the first one replaces it
-                    hd_n = 0
-
-            # -- 6. outputs ---------------------------------------------------------
-            if has_mag:
-                half = 0.5 * head
-                ow, ox, oy, oz = mul(math.cos(half), 0.0, 0.0, math.sin(half), q6w, q6x, q6y, q6z)
+@njit(cache=True, inline="always")
+def _heading(row, coef, step, q6w, q6x, q6y, q6z, m0, m1, m2):
+    """Heading from the horizontal field (004's vector rejection), unless the field's norm
+    or dip disagrees with the tracked reference; returns whether it did (disturbed)."""
+    mx, my, mz = _rotate(q6w, q6x, q6y, q6z, m0, m1, m2)
+    m_norm = math.sqrt(mx * mx + my * my + mz * mz)
+    horizontal = math.sqrt(mx * mx + my * my)
+    # an all-zero sample (no measurement) has m_norm == 0: skipped
+    usable = m_norm > 0.0 and horizontal > 1e-6 * m_norm
+    disturbed = False
+    if usable:
+        dip = math.atan2(-mz, horizontal)
+        if row[R_MAG_NORM_REF] <= 0.0:
+            row[R_MAG_NORM_REF] = m_norm
+            row[R_CAND_NORM] = m_norm
+        if math.isnan(row[R_MAG_DIP_REF]):
+            row[R_MAG_DIP_REF] = dip
+            row[R_CAND_DIP] = dip
+        ref_n, ref_d = row[R_MAG_NORM_REF], row[R_MAG_DIP_REF]
+        disturbed = (
+            abs(m_norm - ref_n) > coef[C_MAG_NORM_TOL] * ref_n
+            or abs(dip - ref_d) > coef[C_MAG_DIP_TOL]
+        )
+        if step > 0.0:
+            k_ref = row[R_GAINS + G_K_REF]
+            if not disturbed:
+                row[R_MAG_NORM_REF] = ref_n + k_ref * (m_norm - ref_n)
+                row[R_MAG_DIP_REF] = ref_d + k_ref * (dip - ref_d)
+                row[R_CAND_NORM] = m_norm
+                row[R_CAND_DIP] = dip
+                row[R_CAND_S] = 0.0
+                # a fixed time constant: an adaptive (Kalman) gain that grows after fast
+                # turns or rejected disturbances was measured worse on BROAD, re-acquiring
+                # still-distorted fields too quickly. Start-up: the mean of the
+                # measurements while 1/n is larger
+                k = row[R_GAINS + G_K_MAG]
+                if row[R_SINCE_START] < coef[C_CONVERGE]:
+                    row[R_HEADING_N] += 1.0
+                    k = max(k, 1.0 / row[R_HEADING_N])
+                # angle of the horizontal field from north (+y) towards east (+x)
+                field_heading = math.atan2(mx, my)
+                head = row[R_HEADING]
+                row[R_HEADING] = _wrap(head + k * _wrap(field_heading - head))
             else:
-                ow, ox, oy, oz = q6w, q6x, q6y, q6z
-            if ned:
-                ow, ox, oy, oz = mul(0.0, h, h, 0.0, ow, ox, oy, oz)
-                q6w, q6x, q6y, q6z = mul(0.0, h, h, 0.0, q6w, q6x, q6y, q6z)
-            quat_out[s, i, 0], quat_out[s, i, 1] = ow, ox
-            quat_out[s, i, 2], quat_out[s, i, 3] = oy, oz
-            quat6_out[s, i, 0], quat6_out[s, i, 1] = q6w, q6x
-            quat6_out[s, i, 2], quat6_out[s, i, 3] = q6y, q6z
-            bias_out[s, i, 0], bias_out[s, i, 1], bias_out[s, i, 2] = b0_, b1_, b2_
-            bias_sd_out[s, i, 0] = math.sqrt(p0)
-            bias_sd_out[s, i, 1] = math.sqrt(p1)
-            bias_sd_out[s, i, 2] = math.sqrt(p2)
-            rest_out[s, i] = rest
-            mag_dist_out[s, i] = disturbed
+                # a new, steady field: track a candidate and adopt it once it has stayed
+                # consistent for long enough (a new environment)
+                cand_n, cand_d = row[R_CAND_NORM], row[R_CAND_DIP]
+                steady = (
+                    abs(m_norm - cand_n) < coef[C_MAG_NORM_TOL] * cand_n
+                    and abs(dip - cand_d) < coef[C_MAG_DIP_TOL]
+                )
+                if steady:
+                    row[R_CAND_S] += step
+                    row[R_CAND_NORM] = cand_n + k_ref * (m_norm - cand_n)
+                    row[R_CAND_DIP] = cand_d + k_ref * (dip - cand_d)
+                else:
+                    row[R_CAND_S] = 0.0
+                    row[R_CAND_NORM] = m_norm
+                    row[R_CAND_DIP] = dip
+                if row[R_CAND_S] > coef[C_MAG_NEW_REF_T]:
+                    row[R_MAG_NORM_REF] = row[R_CAND_NORM]
+                    row[R_MAG_DIP_REF] = row[R_CAND_DIP]
+                    row[R_CAND_S] = 0.0
+    if row[R_SINCE_START] == 0.0 and row[R_HEADING_N] == 1.0 and (disturbed or not usable):
+        # a start without an undisturbed field: its heading is no measurement, the first
+        # one replaces it
+        row[R_HEADING_N] = 0.0
+    return disturbed
 
-        # -- store the state -------------------------------------------------------------
-        q_gyr[s, 0], q_gyr[s, 1], q_gyr[s, 2], q_gyr[s, 3] = gw, gx, gy, gz
-        q_acc[s, 0], q_acc[s, 1], q_acc[s, 2], q_acc[s, 3] = cw, cx, cy, cz
-        heading[s] = head
-        bias[s, 0], bias[s, 1], bias[s, 2] = b0_, b1_, b2_
-        bias_var[s, 0], bias_var[s, 1], bias_var[s, 2] = p0, p1, p2
-        acc_lp[s, 0], acc_lp[s, 1], acc_lp[s, 2] = l0, l1, l2
-        acc_lp_bw[s, 0, 0], acc_lp_bw[s, 0, 1] = s10, s20
-        acc_lp_bw[s, 1, 0], acc_lp_bw[s, 1, 1] = s11, s21
-        acc_lp_bw[s, 2, 0], acc_lp_bw[s, 2, 1] = s12, s22
-        acc_lp_stage[s] = stage
-        heading_n[s] = hd_n
-        since_start[s] = t_start
-        gyr_rest[s, 0], gyr_rest[s, 1], gyr_rest[s, 2] = gr0, gr1, gr2
-        acc_rest[s, 0], acc_rest[s, 1], acc_rest[s, 2] = ar0, ar1, ar2
-        still_t[s] = t_still
-        mag_norm_ref[s], mag_dip_ref[s] = ref_n, ref_d
-        mag_cand_norm[s], mag_cand_dip[s], mag_cand_t[s] = cand_n, cand_d, cand_t
+
+@njit(cache=True, inline="always")
+def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
+    """One screened sample (an all-zero acc or mag: no measurement; dt 0: nothing to
+    integrate): q_out the 9-D (6-D without a field) orientation; returns REST and
+    MAG_DISTURBED bits."""
+    acc_ok = a0 != 0.0 or a1 != 0.0 or a2 != 0.0
+    if acc_ok and row[R_LP_STAGE] == LP_EMPTY:
+        # the first usable sample since the start: it starts both low-passes (q_gyr is
+        # the identity at a start, so I is the body frame then)
+        g = R_Q_GYR
+        row[R_ACC_LP], row[R_ACC_LP + 1], row[R_ACC_LP + 2] = _rotate(
+            row[g], row[g + 1], row[g + 2], row[g + 3], a0, a1, a2
+        )
+        row[R_ACC_REST], row[R_ACC_REST + 1], row[R_ACC_REST + 2] = a0, a1, a2
+        row[R_LP_STAGE] = LP_FIRST
+        acc_ok = False  # used: not filtered a second time below
+    rest = False
+    if dt > 0.0:
+        _gains(row, coef, dt)
+        row[R_SINCE_START] += dt
+        # -- strapdown: q_gyr ⊗ exp((ω - b) dt / 2); the bias walks between measurements
+        b = R_BIAS
+        dw, dx, dy, dz = exp_half(g0 - row[b], g1 - row[b + 1], g2 - row[b + 2], dt)
+        g = R_Q_GYR
+        gw, gx, gy, gz = mul(row[g], row[g + 1], row[g + 2], row[g + 3], dw, dx, dy, dz)
+        row[g], row[g + 1], row[g + 2], row[g + 3] = normalized(gw, gx, gy, gz)
+        walk = coef[C_BIAS_WALK] ** 2 * dt
+        for k in range(3):
+            row[R_BIAS_VAR + k] += walk
+        rest = _rest(row, coef, dt, g0, g1, g2, a0, a1, a2, acc_ok)
+        if acc_ok:  # (an all-zero sample is no measurement: nothing reaches the low-pass)
+            _incline(row, coef, dt, a0, a1, a2, rest)
+        bias_max = coef[C_BIAS_MAX]
+        for k in range(3):
+            row[R_BIAS + k] = min(max(row[R_BIAS + k], -bias_max), bias_max)
+            row[R_BIAS_SD + k] = math.sqrt(row[R_BIAS_VAR + k])
+    c, g = R_Q_ACC, R_Q_GYR
+    q6w, q6x, q6y, q6z = mul(row[c], row[c + 1], row[c + 2], row[c + 3],
+                             row[g], row[g + 1], row[g + 2], row[g + 3])  # fmt: skip
+    disturbed = False
+    if has_mag:
+        disturbed = _heading(row, coef, dt, q6w, q6x, q6y, q6z, m0, m1, m2)
+        half = 0.5 * row[R_HEADING]
+        ow, ox, oy, oz = mul(math.cos(half), 0.0, 0.0, math.sin(half), q6w, q6x, q6y, q6z)
+    else:
+        ow, ox, oy, oz = q6w, q6x, q6y, q6z
+    ned = coef[C_NED] > 0.5
+    if ned:
+        ow, ox, oy, oz = mul(0.0, _H, _H, 0.0, ow, ox, oy, oz)
+    q_out[0], q_out[1], q_out[2], q_out[3] = ow, ox, oy, oz
+    _outputs(row, ned, q6w, q6x, q6y, q6z, x_out)
+    return (REST if rest else 0) | (MAG_DISTURBED if disturbed else 0)
+
+
+@njit(cache=True)
+def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """S sensors' N samples (``contract.run_series``)."""
+    contract.run_series(
+        _start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out
+    )
+
+
+@njit(cache=True)
+def update(rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """One sample of S sensors (``contract.update_samples``)."""
+    contract.update_samples(
+        _start, _step, _hold, rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out, flags_out
+    )
+
+
+@njit(cache=True)
+def update_one(rows, clock, coefs, dt, g, a, m, has, out):
+    """One sample of one sensor (``contract.update_one``); returns the flags."""
+    return contract.update_one(_start, _step, _hold, rows, clock, coefs, dt, g, a, m, has, out)
+
+
+@njit(cache=True)
+def start(rows, coefs, quat0):
+    """Start S sensors at quat0 (S, 4) (``contract.start_rows``)."""
+    contract.start_rows(_start, rows, coefs, quat0)
