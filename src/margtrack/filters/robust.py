@@ -80,7 +80,11 @@ class RobustParams(Params):
         0.5, unit="deg/s", gt=0, help="initial standard deviation of the gyro bias"
     )
     bias_walk_deg_s_sqrt_s: float = param(
-        0.01, unit="deg/s/√s", ge=0, help="gyro bias random walk (how fast the bias may wander)"
+        0.01,
+        unit="deg/s/√s",
+        ge=0,
+        help="gyro bias random walk (how fast the bias may wander)",
+        calibrated_by="noise.gyr_bias_walk_rad_s2_sqrt_hz",
     )
     bias_rest_noise_deg_s: float = param(
         0.05, unit="deg/s", gt=0, help="noise of the low-passed gyro used as the bias at rest"
