@@ -11,7 +11,12 @@ from margtrack import frames, sim
 from margtrack import quaternion as quat
 from margtrack.bench.metrics import error_series, summarize
 from margtrack.estimator import Flag, initial_orientation, specs
-from margtrack.filters.bias_kf import BiasKalman, BiasKalmanParams, initial_covariance
+from margtrack.filters.bias_kf import (
+    BiasKalman,
+    BiasKalmanParams,
+    covariance,
+    initial_covariance,
+)
 from margtrack.kernels import bias_kf as kernel
 
 BIAS = np.radians([0.4, -0.3, 0.5])
@@ -35,11 +40,11 @@ def test_the_field_unit_does_not_change_the_estimate():
     mag = rec.mag.copy()
     mag[800:1200] += np.array([30.0, -20.0, 10.0])
     ref = BiasKalman().run(gyr=rec.gyr, acc=rec.acc, mag=mag, t=rec.t)
-    assert ref.outputs["mag_disturbed"][800:1200].any()  # the disturbance terms did act
+    assert (ref.flags[800:1200] & Flag.MAG_DISTURBED).any()  # the disturbance terms did act
     for scale in (1000.0, 0.01):
         est = BiasKalman().run(gyr=rec.gyr, acc=rec.acc, mag=mag * scale, t=rec.t)
         np.testing.assert_allclose(est.quat, ref.quat, rtol=0, atol=1e-9)
-        np.testing.assert_array_equal(est.outputs["mag_disturbed"], ref.outputs["mag_disturbed"])
+        np.testing.assert_array_equal(est.flags, ref.flags)
 
 
 def test_field_noise_is_relative_only_their_ratio_counts():
@@ -148,19 +153,20 @@ def test_a_no_op_sample_leaves_the_state_unchanged():
     est2 = BiasKalman()
     est2.run(rec.slice(0, 50))
     s = est2.state
-    q, cov = s.quat.copy(), s.cov.copy()
+    q, cov = s.get("filter_quat"), covariance(s)
     out = [np.empty((1, 1, 4)), np.empty((1, 1, 3)), np.empty((1, 1, 7)),
            np.empty((1, 1), dtype=np.int8), np.empty((1, 1), dtype=np.bool_)]
     p = BiasKalmanParams()
     gyr_var, bias_var = p.axis_variances()
+    cov_state = cov.copy()
     kernel.bias_kf_extended(
-        s.quat, s.bias_rad_s, s.cov, s.field_reference, np.ones((1, 1, 3)),
+        q.copy(), s.get("gyr_bias_rad_s"), cov_state, s.get("field_reference"), np.ones((1, 1, 3)),
         np.zeros((1, 1, 3)), np.zeros((1, 1, 3)), np.zeros(1), frames.up("ENU"),
         frames.mag_reference("ENU", 0.0), gyr_var, bias_var, 1e-6, 0.04, 96.0, 4e-6,
         True, 1e-6, 0.5, 0.05, 0.5, 20.0, 1.5, 0.25, 0.35, *out,
     )
     np.testing.assert_array_equal(out[0][0, 0], q[0])
-    np.testing.assert_array_equal(s.cov, cov)
+    np.testing.assert_array_equal(cov_state, cov)
     assert out[3][0, 0] == kernel.OK
 
 
@@ -222,17 +228,21 @@ def test_restart_drops_the_attitude_bias_correlation_of_the_restarted_sensor_onl
     est.run(gyr=np.stack([rec.gyr] * 2), acc=np.stack([rec.acc] * 2),
             mag=np.stack([rec.mag] * 2), t=rec.t)
     state = est.state
-    before = state.cov.copy()
+    before, bias = covariance(state), state.get("gyr_bias_rad_s")
+    field_ref = state.get("field_reference")
     assert np.max(np.abs(before[1, :4, 4:])) > 0.0
     q0 = np.array([[1.0, 0.0, 0.0, 0.0]])
-    est._restart(state, q0, np.array([1]))
-    np.testing.assert_array_equal(state.cov[0], before[0])  # the other sensor untouched
-    np.testing.assert_array_equal(state.cov[1, 4:, 4:], before[1, 4:, 4:])
-    assert np.all(state.cov[1, :4, 4:] == 0.0) and np.all(state.cov[1, 4:, :4] == 0.0)
+    kernel.start(state.rows[1:], est._coefs, q0)  # what a restart after a gap does
+    after = covariance(state)
+    np.testing.assert_array_equal(after[0], before[0])  # the other sensor untouched
+    np.testing.assert_array_equal(after[1, 4:, 4:], before[1, 4:, 4:])
+    assert np.all(after[1, :4, 4:] == 0.0) and np.all(after[1, 4:, :4] == 0.0)
     np.testing.assert_array_equal(
-        state.cov[1, :4, :4], initial_covariance(q0, est.params.init_angle_std_rad, 0.0)[0, :4, :4]
+        after[1, :4, :4], initial_covariance(q0, est.params.init_angle_std_rad, 0.0)[0, :4, :4]
     )
-    np.testing.assert_array_equal(state.bias_rad_s, est.state.bias_rad_s)
+    np.testing.assert_array_equal(state.get("gyr_bias_rad_s"), bias)
+    np.testing.assert_array_equal(state.get("field_reference"), field_ref)
+    np.testing.assert_array_equal(state.get("filter_quat")[1], q0[0])
     np.testing.assert_array_equal(state.quat[1], q0[0])
 
 
@@ -272,7 +282,6 @@ def test_the_method_flags_a_magnetic_disturbance_and_the_screening_does_not_gate
     mag[800:1200] += np.array([30.0, -20.0, 10.0])  # body-fixed: norm 13-79 µT while turning
     est = BiasKalman().run(gyr=rec.gyr, acc=rec.acc, mag=mag, t=rec.t)
     disturbed = (est.flags & Flag.MAG_DISTURBED) != 0
-    np.testing.assert_array_equal(disturbed, est.outputs["mag_disturbed"])
     norm_off = np.abs(np.linalg.norm(mag, axis=1) / sim.DEFAULT_FIELD_UT - 1.0)
     assert np.all(disturbed[norm_off > 0.3])  # beyond mag_norm_tol = 0.25 with a margin
     assert np.count_nonzero(norm_off > 0.3) > 200
@@ -286,12 +295,13 @@ def test_the_method_flags_a_magnetic_disturbance_and_the_screening_does_not_gate
     np.testing.assert_array_equal(wide.quat, est.quat)  # flags only
 
 
-def test_not_positive_definite_is_flagged_on_both_sensors():
-    flags = BiasKalman()._method_flags(
-        {"degenerate": np.array([[0, kernel.PARALLEL, kernel.NOT_PD, kernel.ZERO_MAG]]),
-         "mag_disturbed": np.zeros((1, 4), dtype=bool)}
-    )
-    assert list(flags[0]) == [0, Flag.MAG_IGNORED, Flag.ACC_IGNORED | Flag.MAG_IGNORED, 0]
+def test_the_codes_map_onto_the_flags():
+    codes = (kernel.OK, kernel.ZERO_ACC, kernel.ZERO_MAG, kernel.PARALLEL, kernel.NOT_PD)
+    # ZERO_ACC and ZERO_MAG are the screening's (ACC_IGNORED, MAG_IGNORED are set there)
+    expected = (0, 0, 0, Flag.MAG_IGNORED, Flag.ACC_IGNORED | Flag.MAG_IGNORED)
+    for code, bits in zip(codes, expected, strict=True):
+        assert kernel.code_flags(code, False) == bits
+        assert kernel.code_flags(code, True) == bits | Flag.MAG_DISTURBED
 
 
 def test_parameters_are_declared_and_tilt_gate_none_is_off():

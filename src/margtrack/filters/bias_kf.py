@@ -29,10 +29,13 @@ the quaternion error along ``q`` (``E|θ|⁴/64``), which keeps ``P`` positive d
 gets unit variance there (the measured quaternion's component along ``q`` is the biased,
 information-free ``cos(φ/2) - 1``): with a tiny variance it leaks into the bias through
 cross-covariances and the filter becomes inconsistent (see
-:func:`margtrack.kernels.bias_kf.fill_quat_noise` and the consistency test).
+:func:`margtrack.kernels.bias_kf_model.fill_quat_noise` and the consistency test).
 
 Paper slips corrected (the sign of ``Ω×`` in eq. 21, the row order of eq. 24, the missing
-``T`` of eq. 28) are listed in :mod:`margtrack.kernels.bias_kf`.
+``T`` of eq. 28) are listed in :mod:`margtrack.kernels.bias_kf_model`.
+
+The whole per-sample path (screening, clock, starts, filter) is one compiled call per
+``update`` or ``run`` (:mod:`margtrack.estimator.compiled`, :mod:`margtrack.kernels.bias_kf`).
 
 Extensions (margtrack's, documented in :class:`BiasKalmanParams`; each has a neutral value
 at which the filter is the one above to the last bit, :meth:`BiasKalmanParams.as_printed`
@@ -44,16 +47,18 @@ on BROAD they take the mean total RMSE from 9.1 deg (filter as printed, tuned) t
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from margtrack import frames
-from margtrack.estimator import Estimator, Flag, Params, State, initial_orientation, param
+from margtrack.estimator import Estimate, Params, initial_orientation, param
+from margtrack.estimator.compiled import CompiledEstimator, CompiledState
 from margtrack.estimators.all_accelerometer import differential_acceleration, gravity_estimate
 from margtrack.frames import STANDARD_GRAVITY_M_S2
 from margtrack.kernels import all_accelerometer as aa_kernel
@@ -67,7 +72,7 @@ __all__ = [
     "AllAccelerometerTrack",
     "BiasKalman",
     "BiasKalmanParams",
-    "BiasKalmanState",
+    "covariance",
     "initial_covariance",
     "track_all_accelerometer",
 ]
@@ -252,34 +257,6 @@ class BiasKalmanParams(Params):
         return (self.mag_noise_ut_sqrt_hz / self.mag_field_ut) ** 2
 
 
-@dataclass
-class BiasKalmanState(State):
-    """Filter state per sensor: orientation, rate bias and the 7x7 covariance.
-
-    quat : (S, 4) orientation; bias_rad_s : (S, 3) bias of the rate input, rad/s;
-    cov : (S, 7, 7) covariance of ``[q (4), b (3)]`` (quaternion part dimensionless,
-    bias part (rad/s)²); field_reference : (S, 2) the field norm (mag unit) and the sine
-    of its dip of the first field sample, NaN before it (used by
-    ``mag_norm_correlation_s`` and ``mag_dip_correlation_s`` and the disturbance flag).
-    A restart after a gap keeps ``bias_rad_s``, its covariance block and
-    ``field_reference`` (what is known of the sensor and the place) and resets the
-    orientation and its covariance (:meth:`BiasKalman._restart`).
-    """
-
-    bias_rad_s: Array = field(default_factory=lambda: np.zeros((0, 3)))
-    cov: Array = field(default_factory=lambda: np.zeros((0, 7, 7)))
-    field_reference: Array = field(default_factory=lambda: np.zeros((0, 2)))
-
-    def gyr_bias_rad_s(self) -> Array:
-        """(S, 3) the estimated bias of the rate input, rad/s (subtract it from the rate)."""
-        return self.bias_rad_s.copy()
-
-    def gyr_bias_sd_rad_s(self) -> Array:
-        """(S, 3) its standard deviation from the covariance's bias block, rad/s."""
-        var = np.diagonal(self.cov[:, 4:, 4:], axis1=1, axis2=2)
-        return np.sqrt(np.maximum(var, 0.0))
-
-
 def initial_covariance(quat0: Array, angle_std_rad: float, bias_std_rad_s: float) -> Array:
     """Initial covariance (S, 7, 7): body-frame angle std and bias std per axis, uncorrelated.
 
@@ -295,7 +272,26 @@ def initial_covariance(quat0: Array, angle_std_rad: float, bias_std_rad_s: float
     return cov
 
 
-class BiasKalman(Estimator[BiasKalmanParams, BiasKalmanState]):
+#: the named slots of a sensor's state row (``state.get(name)``; :mod:`margtrack.kernels.bias_kf`)
+STATE_LAYOUT = {
+    "filter_quat": (kernel.Q, 4),
+    "gyr_bias_rad_s": (kernel.BIAS, 3),
+    "gyr_bias_sd_rad_s": (kernel.BIAS_SD, 3),
+    "cov": (kernel.COV, 49),
+    "field_reference": (kernel.FIELD_REF, 2),
+}
+
+_STAMPS = itertools.count(1)
+#: ``kernel.coefficients`` as Python (the function itself when numba's JIT is disabled)
+_COEFFICIENTS = getattr(kernel.coefficients, "py_func", kernel.coefficients)
+
+
+def covariance(state: CompiledState) -> Array:
+    """(S, 7, 7) the covariance of ``[q (4), b (3)]`` held in a :class:`BiasKalman` state."""
+    return state.get("cov").reshape(-1, 7, 7)
+
+
+class BiasKalman(CompiledEstimator[BiasKalmanParams]):
     """Ang's quaternion + rate-bias Kalman filter with the TRIAD measurement (``bias-kf``).
 
     Needs a magnetometer (TRIAD does). Inputs per sample: rate (gyroscope or
@@ -305,138 +301,86 @@ class BiasKalman(Estimator[BiasKalmanParams, BiasKalmanState]):
 
     Magnetic disturbances are the filter's own business (``rejects_mag_disturbance``: the
     screening's norm/dip gate is off): the field's variance grows with its norm's and
-    dip's distance from ``field_reference`` (``mag_norm_correlation_s``,
+    dip's distance from the field reference (``mag_norm_correlation_s``,
     ``mag_dip_correlation_s``), so a disturbed field still corrects, less and less; a field
     beyond ``mag_norm_tol`` or ``mag_dip_tol_deg`` is flagged MAG_DISTURBED. On BROAD the
     soft weighting alone scores 4.70 deg, with the screening's gate in front 4.99 deg
     (without the partial tilt-only update 5.60), with a hard rejection beyond the
     tolerances added to the soft weighting 4.70.
 
+    The whole per-sample path is compiled (:mod:`margtrack.kernels.bias_kf`). State
+    (:class:`~margtrack.estimator.compiled.CompiledState`, ``state.get(name)``, (S, width)):
+    ``filter_quat`` (4), ``gyr_bias_rad_s`` (3) the bias of the rate input, rad/s,
+    ``gyr_bias_sd_rad_s`` (3) its standard deviation, ``cov`` (49) the 7x7 covariance of
+    ``[q (4), b (3)]`` row-major (quaternion part dimensionless, bias part (rad/s)²;
+    :func:`covariance` gives it (S, 7, 7)), ``field_reference`` (2) the field norm (mag
+    unit) and the sine of its dip of the first field sample, NaN before it (used by
+    ``mag_norm_correlation_s`` and ``mag_dip_correlation_s`` and the disturbance flag).
+    A restart after a gap keeps the bias, its covariance block and the field reference
+    (what is known of the sensor and the place), measures the orientation afresh, starts
+    its covariance block from ``init_angle_std_rad`` and drops its correlation with the
+    bias.
+
     Outputs besides ``quat``:
 
     - ``gyr_bias_rad_s`` (N, 3): the bias estimate, rad/s (subtract it from the rate);
     - ``cov_diag`` (N, 7): the diagonal of the covariance after each sample, order
       ``[q_w, q_x, q_y, q_z, b_x, b_y, b_z]`` (quaternion part dimensionless, bias part
-      (rad/s)²); the full 7x7 matrix after the last sample is ``state.cov``;
-    - ``mag_disturbed`` (N,) bool: the field's norm or dip was more than ``mag_norm_tol``
-      or ``mag_dip_tol_deg`` from ``field_reference`` (flag MAG_DISTURBED);
+      (rad/s)²); the full 7x7 matrix after the last sample is ``covariance(est.state)``;
     - ``degenerate`` (N,) int8, method detail kept for existing users (the same facts are
-      in ``flags``): 0 corrected (or ``dt = 0``), 1 no accelerometer: heading corrected
-      only, 2 no field: tilt only, 3 accelerometer or predicted up parallel to the field:
-      tilt only (flag MAG_IGNORED), 5 innovation covariance not positive definite: not
-      corrected (flags ACC_IGNORED and MAG_IGNORED).
+      in ``flags``): 0 corrected (or ``dt = 0``, or held), 1 no accelerometer: heading
+      corrected only (flag ACC_IGNORED), 2 no field: tilt only (MAG_IGNORED), 3
+      accelerometer or predicted up parallel to the field: tilt only (MAG_IGNORED), 5
+      innovation covariance not positive definite: not corrected (ACC_IGNORED and
+      MAG_IGNORED).
+
+    A field's norm or dip beyond ``mag_norm_tol`` or ``mag_dip_tol_deg`` from the
+    reference is flagged MAG_DISTURBED (the former ``mag_disturbed`` output).
     """
 
     name = "bias-kf"
     params_type = BiasKalmanParams
     mag_optional = False
     rejects_mag_disturbance = True
-    kept_on_restart = ("bias_rad_s", "cov", "field_reference")
+    kernel = kernel
+    state_layout = STATE_LAYOUT
+    outputs_layout = (("gyr_bias_rad_s", 3), ("cov_diag", 7), ("degenerate", 1))
 
-    def _new_state(self, quat0: Array) -> BiasKalmanState:
+    def _coefficients(self) -> Array:
+        """The kernel's coefficients (``kernel.coefficients``, run as Python: no compiled
+        call when an estimator is built or retuned); a new stamp each time."""
         p = self.params
-        q = np.array(quat0, dtype=np.float64)
-        return BiasKalmanState(
-            quat=q,
-            bias_rad_s=np.zeros((q.shape[0], 3)),
-            cov=initial_covariance(q, p.init_angle_std_rad, p.init_bias_std_rad_s),
-            field_reference=np.full((q.shape[0], 2), np.nan),
-        )
-
-    def _restart(self, state: BiasKalmanState, quat0: Array, rows: NDArray[np.intp]) -> None:
-        """Keep the bias, its covariance block and the field reference; reset the attitude.
-
-        The attitude block of the covariance starts afresh (``init_angle_std_rad``) and
-        its correlation with the bias is dropped (the new orientation is measured, not
-        propagated).
-        """
-        super()._restart(state, quat0, rows)
-        if state.cov.shape != (state.quat.shape[0], 7, 7):
-            return  # a malformed state: _process names it
-        fresh = initial_covariance(quat0, self.params.init_angle_std_rad, 0.0)
-        cov = state.cov[rows]
-        cov[:, :4, :] = 0.0
-        cov[:, :, :4] = 0.0
-        cov[:, :4, :4] = fresh[:, :4, :4]
-        state.cov[rows] = cov
-
-    def _method_flags(self, outputs: Mapping[str, NDArray[Any]]) -> NDArray[np.uint16] | None:
-        flags = super()._method_flags(outputs)
-        code = outputs["degenerate"]
-        extra = np.where(code == kernel.PARALLEL, np.uint16(Flag.MAG_IGNORED), np.uint16(0))
-        extra |= np.where(
-            code == kernel.NOT_PD, np.uint16(Flag.ACC_IGNORED | Flag.MAG_IGNORED), np.uint16(0)
-        )
-        return extra if flags is None else flags | extra
-
-    def _process(
-        self,
-        state: BiasKalmanState,
-        gyr: Array | None,
-        acc: Array,
-        mag: Array | None,
-        dt: Array,
-    ) -> tuple[Array, dict[str, NDArray[Any]]]:
-        assert gyr is not None and mag is not None  # uses_gyr, mag_optional = False
-        p = self.params
-        n_sensors, n = acc.shape[0], acc.shape[1]
-        if state.bias_rad_s.shape != (n_sensors, 3) or state.cov.shape != (n_sensors, 7, 7):
-            raise ValueError(
-                f"the state must hold bias_rad_s ({n_sensors}, 3) and cov ({n_sensors}, 7, "
-                f"7), got {state.bias_rad_s.shape} and {state.cov.shape}"
-            )
-        if state.field_reference.shape != (n_sensors, 2):
-            raise ValueError(
-                f"the state must hold field_reference ({n_sensors}, 2), got "
-                f"{state.field_reference.shape}"
-            )
         gyr_var, bias_var = p.axis_variances()
-        # one kernel specialisation: numba types read-only arrays (a Recording's) apart
-        gyr, acc, mag = (x if x.flags.writeable else x.copy() for x in (gyr, acc, mag))
-        quat = np.empty((n_sensors, n, 4))
-        bias = np.empty((n_sensors, n, 3))
-        cov_diag = np.empty((n_sensors, n, 7))
-        flags = np.empty((n_sensors, n), dtype=np.int8)
-        disturbed = np.empty((n_sensors, n), dtype=np.bool_)
-        kernel.bias_kf_extended(
-            state.quat,
-            state.bias_rad_s,
-            state.cov,
-            state.field_reference,
-            gyr,
-            acc,
-            mag,
-            dt,
-            frames.up(p.frame),
-            frames.mag_reference(p.frame, dip_deg=0.0),
+        return _COEFFICIENTS(
             gyr_var,
             bias_var,
             p.acc_noise_m_s2_sqrt_hz**2,
             (p.acc_motion_fraction * p.gravity_m_s2) ** 2,
             p.gravity_m_s2**2,
             p.mag_relative_var(),
-            p.decoupled_heading,
+            bool(p.decoupled_heading),
             p.gyr_scale_noise_sqrt_s**2,
-            p.acc_norm_correlation_s,
-            p.mag_norm_correlation_s,
-            p.mag_dip_correlation_s,
-            math.inf if p.tilt_gate is None else p.tilt_gate,
-            p.tilt_gate_exponent,
-            p.mag_norm_tol,
+            float(p.acc_norm_correlation_s),
+            float(p.mag_norm_correlation_s),
+            float(p.mag_dip_correlation_s),
+            math.inf if p.tilt_gate is None else float(p.tilt_gate),
+            float(p.tilt_gate_exponent),
+            float(p.mag_norm_tol),
             math.radians(p.mag_dip_tol_deg),
-            quat,
-            bias,
-            cov_diag,
-            flags,
-            disturbed,
+            frames.up(p.frame),
+            frames.mag_reference(p.frame, dip_deg=0.0),
+            p.init_angle_std_rad**2,
+            p.init_bias_std_rad_s**2,
+            float(next(_STAMPS)),
         )
-        outputs = {
-            "gyr_bias_rad_s": bias,
-            "cov_diag": cov_diag,
-            "degenerate": flags,
-            "mag_disturbed": disturbed,
-        }
-        return quat, outputs
+
+    def _run_arrays(self, *args: Any, **kwargs: Any) -> Estimate:
+        """The compiled run, with ``degenerate`` (S, N) int8 as before (the kernel writes
+        the code as a float output)."""
+        est = super()._run_arrays(*args, **kwargs)
+        outputs = dict(est.outputs)
+        outputs["degenerate"] = outputs["degenerate"][..., 0].astype(np.int8)
+        return dataclasses.replace(est, outputs=outputs)
 
 
 @dataclass(frozen=True)
