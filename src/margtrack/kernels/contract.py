@@ -46,7 +46,7 @@ N_SCOEF = screen.N_COEF + 2
 INITIALISING = 256  # margtrack.estimator.flags.Flag.INITIALISING
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def initial(scoef, a0, a1, a2, m0, m1, m2):
     """The orientation measured by one screened sample: (ok, w, x, y, z).
 

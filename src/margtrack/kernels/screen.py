@@ -118,7 +118,7 @@ def _finite3(x, y, z):
     return math.isfinite(x) and math.isfinite(y) and math.isfinite(z)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def screen_one(coef, sc, step, time_flags, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, has_gyr):
     """Screen one sensor's sample; returns (flags, g0, g1, g2, a0, a1, a2, m0, m1, m2).
 
@@ -186,7 +186,7 @@ def screen_one(coef, sc, step, time_flags, g0, g1, g2, a0, a1, a2, m0, m1, m2, h
     return f, g0, g1, g2, a0, a1, a2, m0, m1, m2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _field_usable(coef, sc, step, w0, w1, w2, m0, m1, m2):
     """Whether a finite field sample is usable: no axis stuck or at a learned clip level.
 
@@ -250,7 +250,7 @@ def screen_samples(coef, dt, time_flags, gyr, acc, mag, has_mag, has_gyr, sc,
             flags_out[s, i] = f
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _acc_turn_rate(sc, acc_ok, a0, a1, a2, step):
     """Rate (rad/s, body) that turned the accelerometer's direction since the last usable one.
 
@@ -269,7 +269,7 @@ def _acc_turn_rate(sc, acc_ok, a0, a1, a2, step):
     )
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _disturbed(coef, sc, step, acc_ok, a0, a1, a2, m0, m1, m2):
     """How far the field is from the tracked reference: 0 close, 1 disturbed, 2 absurd.
 
