@@ -52,7 +52,7 @@ _CLASSES: tuple[type[Estimator], ...] = (
 _BY_NAME: Mapping[str, type[Estimator]] = types.MappingProxyType({c.name: c for c in _CLASSES})
 
 #: The recommended method; ``"default"`` resolves to it: the best measured on BROAD so far.
-#: Mean total RMSE over the 16 trials with default parameters: robust 2.01 deg (VQF 2.76
+#: Mean total RMSE over the 16 trials with default parameters: robust 2.03 deg (VQF 2.76
 #: deg in the same run), gyro 28.8 deg, TRIAD 47.8 deg.
 DEFAULT_METHOD = "robust"
 
