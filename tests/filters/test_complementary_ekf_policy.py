@@ -16,6 +16,7 @@ from margtrack.filters._rest_null import RestNullState, subtract_rest_null
 from margtrack.filters.complementary import Bachmann, BachmannAccMag
 from margtrack.filters.ekf import MarinsEkf
 from margtrack.kernels import complementary as bachmann_kernel
+from margtrack.kernels import contract as kc
 from margtrack.kernels import ekf as ekf_kernel
 
 pytestmark = pytest.mark.kernel
@@ -54,7 +55,7 @@ def test_each_sensor_starts_at_its_first_usable_sample_and_measures_its_dip_ther
         mag[s, :k] = np.nan if s == 2 else 0.0
     est = make()
     out = est.run(gyr=np.stack([rec.gyr] * 3), acc=acc, mag=mag, t=rec.t)
-    np.testing.assert_allclose(np.degrees(est.state.dip_rad), DIP, atol=1e-9)
+    np.testing.assert_allclose(np.degrees(est.state.get("dip_rad")[:, 0]), DIP, atol=1e-9)
     for s, k in enumerate(zeros):
         initialising = (out.flags[s] & Flag.INITIALISING) != 0
         np.testing.assert_array_equal(np.flatnonzero(initialising), np.arange(k))
@@ -87,7 +88,7 @@ def test_a_sensor_without_a_usable_field_yet_gets_gravity_only_steps():
     est = Bachmann()
     est.reset(Q0)
     out = est.run(gyr=rec.gyr, acc=rec.acc, mag=mag, t=rec.t)
-    assert np.isnan(est.state.dip_rad[0])
+    assert np.isnan(est.state.get("dip_rad")[0, 0])
     assert np.all(out.outputs["degenerate"] == bachmann_kernel.NO_FIELD_REFERENCE)
     assert np.all(out.flags & Flag.MAG_IGNORED)
     assert np.max(quat.angle_between(out.quat, Q0)) < 1e-12
@@ -117,13 +118,13 @@ def test_ekf_without_a_field_updates_from_the_gyroscope_and_the_gravity_directio
     part.run(gyr=rec.gyr[:50], acc=rec.acc[:50], mag=mag[:50], t=rec.t[:50])
     s, p = part.state, part.params
     h = rec.t[50] - rec.t[49]
-    x0 = np.r_[s.gyr_est_rad_s[0], s.quat[0]]
+    x0 = np.r_[s.get("gyr_est_rad_s")[0], s.get("quat")[0]]
     xp, f, g, d, qn = np.empty(7), np.empty((7, 7)), np.empty((4, 3)), np.empty((4, 3)), \
         np.empty((7, 7))
     tau = p.axis_values("tau_s")
     ekf_kernel.transition(x0, h, tau, xp, f, g, d)
     ekf_kernel.process_noise(g, h, tau, p.axis_values("rate_noise_rad_s_sqrt_hz") ** 2, qn)
-    pp = f @ s.cov[0] @ f.T + qn
+    pp = f @ s.get("cov")[0].reshape(7, 7) @ f.T + qn
     up = frames.up("ENU")
 
     def reading(q):
@@ -180,7 +181,7 @@ def test_ekf_restart_starts_the_covariance_afresh_and_keeps_dip_and_gyro_null():
     gap = _cut(rec, 500, 600)
     est = MarinsEkf()
     first = est.run(gap.slice(0, 500))
-    dip, null = est.state.dip_rad.copy(), est.gyr_bias_rad_s.copy()
+    dip, null = est.state.get("dip_rad"), est.gyr_bias_rad_s.copy()
     second = est.run(gap.slice(500))
     p = est.params
     init = np.r_[np.full(3, p.init_rate_std_rad_s**2), np.full(4, p.init_quat_std**2)]
@@ -188,7 +189,7 @@ def test_ekf_restart_starts_the_covariance_afresh_and_keeps_dip_and_gyro_null():
     np.testing.assert_array_equal(second.outputs["cov_diag"][0], init)
     np.testing.assert_array_equal(second.outputs["gyr_est_rad_s"][0], 0.0)
     assert first.outputs["cov_diag"][-1, 3:].max() < 1e-2 * init[3:].max()
-    np.testing.assert_array_equal(est.state.dip_rad, dip)
+    np.testing.assert_array_equal(est.state.get("dip_rad"), dip)
     np.testing.assert_array_equal(est.gyr_bias_rad_s, null)
     np.testing.assert_array_equal(second.outputs["gyr_null_rad_s"][0], null[0])
 
@@ -211,11 +212,13 @@ def test_bachmann_restart_keeps_dip_and_null_and_raises_the_gain_as_one_over_t()
     t = gap.t[501] - gap.t[500]
     np.testing.assert_allclose(corr_a[501], corr_a[500] * (1 / (t + 1 / k0)) / k0, rtol=1e-12)
     np.testing.assert_allclose(corr_b[501], corr_b[500], rtol=1e-12)
-    np.testing.assert_allclose(raised.state.restart_elapsed_s, gap.t[-1] - gap.t[500])
-    assert plain.state.restart_elapsed_s[0] == -1.0
+    np.testing.assert_allclose(raised.state.get("restart_elapsed_s")[:, 0],
+                               gap.t[-1] - gap.t[500])
+    assert plain.state.get("restart_elapsed_s")[0, 0] == -1.0
     # the sensor's knowledge survives the gap: the dip and the gyro null
-    np.testing.assert_array_equal(raised.state.dip_rad, plain.state.dip_rad)
-    assert np.degrees(raised.state.dip_rad[0]) == pytest.approx(sim.DEFAULT_DIP_DEG, abs=3.0)
+    dip = raised.state.get("dip_rad")[0, 0]
+    np.testing.assert_array_equal(dip, plain.state.get("dip_rad")[0, 0])
+    assert np.degrees(dip) == pytest.approx(sim.DEFAULT_DIP_DEG, abs=3.0)
     null = a.outputs["gyr_null_rad_s"]
     np.testing.assert_array_equal(null[500], null[499])
     np.testing.assert_array_equal(raised.gyr_bias_rad_s[0], null[-1])
@@ -252,40 +255,37 @@ def test_ekf_degenerate_codes_are_on_the_flag_schema():
 
 
 # -- safety of the kernels on their own ---------------------------------------------------------
+def _steps(kernel, coef, q0, gyr, acc, mag, dt, width):
+    """The kernel's per-sample step over the samples from a start at q0 (no screening)."""
+    row = np.zeros(kernel.N_ROW)
+    kernel._start(row, coef, True, *q0)
+    q, x = np.empty((len(dt), 4)), np.empty((len(dt), width))
+    for i in range(len(dt)):
+        kernel._step(row, coef, dt[i], *gyr[i], *acc[i], *mag[i], True, q[i], x[i])
+    return row, q, x
+
+
 def test_kernels_stay_finite_for_absurd_finite_input():
     n = 6
-    gyr = np.zeros((1, n, 3))
-    gyr[0, 2] = [1e300, -1e300, 1e300]
-    gyr[0, 3] = [1e308, 0.0, 0.0]
-    acc = np.tile([0.0, 0.0, 9.81], (1, n, 1))
-    acc[0, 4] = [1e300, 1e-300, 0.0]
-    mag = np.tile([0.0, 20.0, -40.0], (1, n, 1))
-    mag[0, 5] = [1e-320, 0.0, 1e300]
+    gyr = np.zeros((n, 3))
+    gyr[2] = [1e300, -1e300, 1e300]
+    gyr[3] = [1e308, 0.0, 0.0]
+    acc = np.tile([0.0, 0.0, 9.81], (n, 1))
+    acc[4] = [1e300, 1e-300, 0.0]
+    mag = np.tile([0.0, 20.0, -40.0], (n, 1))
+    mag[5] = [1e-320, 0.0, 1e300]
     dt = np.array([0.0, 0.01, 1e10, 0.01, 0.01, 0.01])
-    q = np.empty((1, n, 4))
-    out = [np.empty((1, n)), np.empty((1, n, 3)), np.empty((1, n), dtype=np.bool_),
-           np.empty((1, n), dtype=np.int8)]
-    bachmann_kernel.bachmann(
-        Q0[None].copy(), np.zeros((1, 3)), np.full(1, np.nan), gyr, acc, mag, dt,
-        frames.up("ENU"), frames.mag_reference("ENU", 60.0)[None], 1e3, 1.0, 1,
-        np.zeros(1, dtype=np.int64), 0, np.zeros(1), 10.0, np.ones(1, dtype=bool), q, *out,
-    )
+    own = kc.N_SCOEF  # the method's coefficients follow the screening's
+    coef = Bachmann(gain=1e3, mag_weight=1.0, mag_dip_ref_deg=60.0)._coefs[own:]
+    _, q, _ = _steps(bachmann_kernel, coef, Q0, gyr, acc, mag, dt, 9)
     assert np.all(np.isfinite(q)) and np.allclose(np.linalg.norm(q, axis=-1), 1.0)
     for approach in (1, 2):
-        qe = np.empty((1, n, 4))
-        outs = (np.empty((1, n, 3)), np.empty((1, n, 7)), np.empty((1, n), dtype=np.int32),
-                np.empty((1, n), dtype=np.int8))
-        cov = np.eye(7)[None] * 0.25
-        ekf_kernel.marins_ekf(
-            approach, Q0[None].copy(), np.zeros((1, 3)), cov, np.full(1, np.nan), gyr, acc,
-            mag, dt, frames.up("ENU"), frames.mag_reference("ENU", 0.0), np.nan,
-            np.full(3, 0.3), np.full(3, 2.0), np.full(3, 1e-7), 0.005, 0.09, 1e-3, 96.2, 1.0,
-            1e-14, 2, qe, *outs,
-        )
+        coef = MarinsEkf(approach=approach, init_quat_std=0.5)._coefs[own:]
+        row, qe, x = _steps(ekf_kernel, coef, Q0, gyr, acc, mag, dt, 15)
         assert np.all(np.isfinite(qe)) and np.allclose(np.linalg.norm(qe, axis=-1), 1.0)
-        assert np.all(np.isfinite(outs[1]))
+        assert np.all(np.isfinite(x)) and np.all(np.isfinite(row[ekf_kernel.E_P:][:49]))
     state = RestNullState.new(1)
-    _, null = subtract_rest_null(state, gyr, acc, mag, dt, 0.5)
+    _, null = subtract_rest_null(state, gyr[None], acc[None], mag[None], dt, 0.5)
     assert np.all(np.isfinite(null)) and np.abs(null).max() < 1.0
 
 
@@ -304,8 +304,8 @@ def test_a_bad_state_set_by_hand_is_refused_and_leaves_the_estimator_as_it_was()
     est = Bachmann()
     est.run(rec.slice(0, 50))
     state = est.state
-    state.quat[:] = np.nan
-    est.state = state
+    offset, _ = Bachmann.state_layout["quat"]
+    state.rows[:, offset : offset + 4] = np.nan
     with pytest.raises(ValueError, match="quaternion must be finite and non-zero"):
-        est.run(rec.slice(50))
-    assert np.all(np.isnan(est.state.quat)) and est.state.cycle == 50
+        est.state = state
+    assert np.all(np.isfinite(est.state.get("quat"))) and est.state.get("cycle")[0, 0] == 50

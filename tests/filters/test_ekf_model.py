@@ -182,17 +182,27 @@ def test_eq_19_as_printed_turns_the_reference_the_wrong_way():
 
 
 def _kernel_step(approach, x0, p0, gyr, acc, mag, h, up, field, noise):
-    """One predicted + corrected sample of the kernel (dt = [0, h]); returns x, P."""
-    qs, ws, ps = x0[None, 3:].copy(), x0[None, :3].copy(), p0[None].copy()
-    dip = np.array([np.arcsin(-field @ up)])
-    outs = (np.empty((1, 2, 4)), np.empty((1, 2, 3)), np.empty((1, 2, 7)),
-            np.empty((1, 2), dtype=np.int32), np.empty((1, 2), dtype=np.int8))
-    k.marins_ekf(approach, qs, ws, ps, dip, np.stack([gyr, gyr])[None],
-                 np.stack([acc, acc])[None], np.stack([mag, mag])[None], np.array([0.0, h]),
-                 up, np.array([0.0, 1.0, 0.0]), np.nan, TAU, noise["rate"], noise["gyr"],
-                 noise["quat"], noise["acc"], noise["mag"], 9.81**2, 1.0, 1e-12, 3, *outs)
-    assert outs[4][0, 1] == k.OK
-    return np.r_[ws[0], qs[0]], ps[0], outs[3][0, 1]
+    """One predicted + corrected sample of the kernel's step from x0, P0 over h: x, P and
+    the Gauss-Newton iterations (the row and coefficients set by hand, no screening)."""
+    c = np.zeros(k.N_COEF)  # the rest null's minimum still start 0: off
+    c[k.C_APPROACH] = approach
+    c[k.C_TAU : k.C_TAU + 3] = TAU
+    c[k.C_RATE_VAR : k.C_RATE_VAR + 3] = noise["rate"]
+    c[k.C_GYR_VAR : k.C_GYR_VAR + 3] = noise["gyr"]
+    c[k.C_QUAT_VAR], c[k.C_ACC_VAR], c[k.C_MAG_VAR] = noise["quat"], noise["acc"], noise["mag"]
+    c[k.C_GRAVITY2], c[k.C_MAG_WEIGHT], c[k.C_GN_TOL], c[k.C_GN_MAX_IT] = 9.81**2, 1.0, 1e-12, 3
+    c[k.C_UP : k.C_UP + 3] = up
+    c[k.C_DIP] = np.arcsin(-field @ up)  # a given dip: its reference field is used
+    c[k.C_FIELD : k.C_FIELD + 3] = field
+    row = np.zeros(k.N_ROW)
+    k._start(row, c, True, *x0[3:])
+    row[k.E_X : k.E_X + 7] = x0
+    row[k.E_P : k.E_P + 49] = p0.ravel()
+    q_out, x_out = np.empty(4), np.empty(15)
+    assert k._step(row, c, h, *gyr, *acc, *mag, True, q_out, x_out) == 0
+    assert x_out[k.X_CODE] == k.OK
+    x = row[k.E_X : k.E_X + 7].copy()
+    return x, row[k.E_P : k.E_P + 49].reshape(7, 7).copy(), x_out[k.X_ITER]
 
 
 def test_one_step_equals_the_textbook_ekf_equations():

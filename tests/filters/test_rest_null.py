@@ -118,7 +118,9 @@ def test_update_equals_run_with_the_null_measuring_and_frozen():
     est = Bachmann(rate_hz=RATE_HZ)
     quats = [est.update(rec.gyr[i], rec.acc[i], rec.mag[i]) for i in range(700)]
     np.testing.assert_allclose(np.array(quats), whole.quat, rtol=0, atol=1e-12)
-    assert not est.state.rest_null.still[0]  # the null was frozen on the way
+    state = est.state
+    assert state.get("rest_null_still")[0, 0] == 0.0  # the null was frozen on the way
+    np.testing.assert_array_equal(est.gyr_bias_rad_s, whole.outputs["gyr_null_rad_s"][-1:])
 
 
 @pytest.mark.parametrize("params", [BachmannParams, MarinsEkfParams])

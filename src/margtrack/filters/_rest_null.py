@@ -30,11 +30,15 @@ gravity change) it would be taken for a null. Start recordings still, as 000 doe
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from margtrack.estimator import Estimate
 from margtrack.kernels import rest_null as kernel
 
 Array = NDArray[np.float64]
@@ -97,6 +101,27 @@ def rest_null_rad_s(state: RestNullState, n_sensors: int) -> Array:
     return np.where(state.count[:, None] > 0, state.total_rad_s / count, 0.0)
 
 
+def rest_null_coefficients(min_rest_s: float) -> Array:
+    """The kernel's coefficients (``kernels.rest_null.N_RC``) for a minimum still start, s."""
+    c = np.empty(kernel.N_RC)
+    c[kernel.RC_MIN_REST] = min_rest_s
+    c[kernel.RC_GYR_TOL] = np.radians(GYR_TOLERANCE_DEG_S)
+    c[kernel.RC_ACC_COS] = np.cos(np.radians(ACC_TOLERANCE_DEG))
+    c[kernel.RC_MAG_COS] = np.cos(np.radians(MAG_TOLERANCE_DEG))
+    c[kernel.RC_MAX_RATE] = MAX_RATE_RAD_S
+    return c
+
+
+_FIELDS = (
+    ("total_rad_s", kernel.RN_TOTAL, 3),
+    ("count", kernel.RN_COUNT, 1),
+    ("duration_s", kernel.RN_DURATION, 1),
+    ("acc_sum", kernel.RN_ACC_SUM, 3),
+    ("mag_sum", kernel.RN_MAG_SUM, 3),
+    ("still", kernel.RN_STILL, 1),
+)
+
+
 def subtract_rest_null(
     state: RestNullState,
     gyr: Array,
@@ -109,11 +134,12 @@ def subtract_rest_null(
 
     gyr, acc, mag (S, N, 3) body frame (mag None without a magnetometer), dt (N,) s; the
     state advances (an empty state, e.g. of a state set by hand, starts from scratch).
-    ``min_rest_s <= 0`` returns the gyro unchanged and a zero null.
+    ``min_rest_s <= 0`` returns the gyro unchanged and a zero null. The same per-sample
+    step as the filters' compiled kernels (``kernels.rest_null.step_one``).
     """
     if state.count.size == 0:  # a state built without this part starts measuring now
         fresh = RestNullState.new(gyr.shape[0])
-        for name in ("total_rad_s", "count", "duration_s", "acc_sum", "mag_sum", "still"):
+        for name, _, _ in _FIELDS:
             setattr(state, name, getattr(fresh, name))
     if state.count.shape != (gyr.shape[0],):
         raise ValueError(
@@ -122,13 +148,53 @@ def subtract_rest_null(
         )
     if min_rest_s <= 0.0:
         return gyr, np.zeros_like(gyr)
+    blocks = np.zeros((gyr.shape[0], kernel.N_REST_NULL))
+    for name, offset, width in _FIELDS:
+        blocks[:, offset : offset + width] = np.asarray(getattr(state, name)).reshape(-1, width)
+    blocks[:, kernel.RN_NULL : kernel.RN_NULL + 3] = rest_null_rad_s(state, gyr.shape[0])
     out = np.empty_like(gyr)
     null = np.empty_like(gyr)
     kernel.subtract_rest_null(
-        gyr, acc, np.empty((gyr.shape[0], 0, 3)) if mag is None else mag, dt,
-        state.total_rad_s, state.count, state.duration_s, state.acc_sum, state.mag_sum,
-        state.still, float(min_rest_s), np.radians(GYR_TOLERANCE_DEG_S),
-        np.cos(np.radians(ACC_TOLERANCE_DEG)), np.cos(np.radians(MAG_TOLERANCE_DEG)),
-        MAX_RATE_RAD_S, out, null,
+        gyr, acc, np.empty((gyr.shape[0], 0, 3)) if mag is None else mag, dt, blocks,
+        rest_null_coefficients(float(min_rest_s)), out, null,
     )  # fmt: skip
+    for name, offset, width in _FIELDS:
+        part = blocks[:, offset : offset + width]
+        current = getattr(state, name)
+        current[...] = part.reshape(current.shape).astype(current.dtype)
     return out, null
+
+
+# -- shared by the compiled filters that keep the null in their rows (bachmann, ekf) -------
+def rest_null_layout(offset: int) -> dict[str, tuple[int, int]]:
+    """Named slots of a null block at ``offset`` of a row (``state_layout`` entries)."""
+    return {
+        "rest_null_total_rad_s": (offset + kernel.RN_TOTAL, 3),
+        "rest_null_count": (offset + kernel.RN_COUNT, 1),
+        "rest_null_duration_s": (offset + kernel.RN_DURATION, 1),
+        "rest_null_acc_sum": (offset + kernel.RN_ACC_SUM, 3),
+        "rest_null_mag_sum": (offset + kernel.RN_MAG_SUM, 3),
+        "rest_null_still": (offset + kernel.RN_STILL, 1),
+    }
+
+
+def check_rows(state: Any, n_row: int, q_offset: int, ready: NDArray[np.bool_]) -> None:
+    """Refuse a state set by hand whose rows are not ``n_row`` wide or whose quaternion
+    (4 slots at ``q_offset``) is zero or not finite in a started (``ready``) sensor."""
+    rows = np.asarray(state.rows)
+    if rows.ndim != 2 or rows.shape[1] != n_row:
+        raise ValueError(f"the state rows must have shape (S, {n_row}), got {rows.shape}")
+    q = rows[ready, q_offset : q_offset + 4]
+    norms = np.linalg.norm(q, axis=1)
+    if not np.all(np.isfinite(norms) & (norms > 0)):
+        raise ValueError("the state quaternion must be finite and non-zero")
+
+
+def with_output_types(est: Estimate, types: Mapping[str, Any]) -> Estimate:
+    """The estimate with the named outputs as before the compiled path: width-1 series
+    squeezed to (…, N) and converted to the given type (None: kept float)."""
+    outputs = dict(est.outputs)
+    for name, dtype in types.items():
+        value = outputs[name][..., 0]
+        outputs[name] = value if dtype is None else value.astype(dtype)
+    return dataclasses.replace(est, outputs=outputs)

@@ -32,19 +32,26 @@ would not depend on ``ρ`` at all.) In the linear range the error decays like
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from margtrack import frames
 from margtrack import quaternion as quat
-from margtrack.estimator import Estimator, Flag, Params, State, param
-from margtrack.filters._rest_null import RestNullState, rest_null_rad_s, subtract_rest_null
+from margtrack.estimator import Estimate, Params, param
+from margtrack.estimator.compiled import CompiledEstimator, CompiledState
+from margtrack.filters._rest_null import (
+    check_rows,
+    rest_null_coefficients,
+    rest_null_layout,
+    with_output_types,
+)
 from margtrack.kernels import complementary as kernel
-from margtrack.kernels.triad import PARALLEL_SINE
+from margtrack.kernels import contract as kc
+from margtrack.kernels import rest_null as rest_null_kernel
 
 Array = NDArray[np.float64]
 
@@ -53,7 +60,6 @@ __all__ = [
     "BachmannAccMag",
     "BachmannAccMagParams",
     "BachmannParams",
-    "BachmannState",
     "criterion",
     "error_vector",
     "gauss_newton_step",
@@ -212,67 +218,24 @@ def _check_reference_angle(m: Array, n: Array) -> None:
         )
 
 
-def _field_references(frame: str, dip_deg: Array) -> Array:
-    """Unit field references (S, 3) for dips (S,) in deg, as ``frames.mag_reference``."""
-    c, s = np.cos(np.radians(dip_deg)), np.sin(np.radians(dip_deg))
-    zero = np.zeros_like(c)
-    if frame == "NED":
-        return np.stack([c, zero, s], axis=1)
-    return np.stack([zero, c, -s], axis=1)
+def _turns(p: BachmannParams) -> tuple[Array, Array]:
+    """The turns onto explicit reference vectors of a start without and with a field (4,)
+    each: the shortest arc from up to ``m``, and the rotation taking (up, north) onto
+    (``m``, ``n``) (the TRIAD of the references; ``n`` is north at dip 0 when only ``m`` is
+    given)."""
+    up, m = frames.up(p.frame), p.gravity_unit()
+    arc = quat.shortest_arc(up, m)
+    n = p.mag_unit() if p.mag_reference is not None else frames.mag_reference(p.frame)
+    std = _triad_axes(up, frames.mag_reference(p.frame))
+    return arc, quat.from_matrix(_triad_axes(m, n) @ std.T)
 
 
-def _measured_dips(acc: Array, mag: Array) -> tuple[NDArray[np.intp], Array]:
-    """Sensors (indices) with a usable sample in acc, mag (S, N, 3) and the dip there, rad.
-
-    The first usable sample of each sensor is the first with both vectors non-zero and
-    not parallel (as the contract's initialisation asks); its dip, ``asin(-â·m̂)``, is
-    limited to ±(90 - MIN_REFERENCE_ANGLE_DEG) deg so the heading stays defined.
-    """
-    na = np.linalg.norm(acc, axis=-1)
-    nb = np.linalg.norm(mag, axis=-1)
-    cross = np.linalg.norm(np.cross(acc, mag), axis=-1)
-    usable = (na > 0) & (nb > 0) & (cross >= PARALLEL_SINE * na * nb)
-    rows = np.flatnonzero(usable.any(axis=1))
-    first = usable[rows].argmax(axis=1)
-    a, b = acc[rows, first], mag[rows, first]
-    sine = -np.einsum("ij,ij->i", a, b) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
-    limit = math.radians(90.0 - MIN_REFERENCE_ANGLE_DEG)
-    return rows, np.clip(np.arcsin(np.clip(sine, -1.0, 1.0)), -limit, limit)
+#: outputs as they were before the compiled path: width-1 series squeezed to (…, N), and
+#: their types
+_OUTPUT_TYPES = {"phi": None, "new_correction": np.bool_, "degenerate": np.int8}
 
 
-@dataclass
-class BachmannState(State):
-    """Complete filter state for S sensors.
-
-    quat : (S, 4) ``q̂`` after the last sample. t_last_s : its time, s.
-    correction_step : (S, 3) the held Gauss-Newton step ``Δv_E`` in the earth frame (the
-        latest correction; rad/2, applied as the earth-frame rate ``2 k Δv_E``).
-    phi : (S,) criterion of the held correction (eq. 19); nan before the first.
-    dip_rad : (S,) field inclination measured at the first usable sample, rad (nan: not
-        measured); kept across restarts.
-    restart_elapsed_s : (S,) time since a restart while its raised gain lasts, s (-1: none).
-    started : (S,) whether the sensor has been started before (then a restart raises the gain).
-    awaiting_field : (S,) True from a (re)start until the first usable field sample, which
-        sets the heading (a start from the accelerometer alone leaves it arbitrary).
-    cycle : samples processed since the reset (drives the correction schedule).
-    rest_null : progress of the gyro null taken from the still start (kept on restarts).
-    """
-
-    correction_step: Array = field(default_factory=lambda: np.zeros((0, 3)))
-    phi: Array = field(default_factory=lambda: np.zeros(0))
-    dip_rad: Array = field(default_factory=lambda: np.zeros(0))
-    restart_elapsed_s: Array = field(default_factory=lambda: np.zeros(0))
-    started: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
-    awaiting_field: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
-    cycle: int = 0
-    rest_null: RestNullState = field(default_factory=lambda: RestNullState.new(0))
-
-    def gyr_bias_rad_s(self) -> Array | None:
-        """(S, 3) the gyro null in use (the still start's mean rate; 0 without one), rad/s."""
-        return rest_null_rad_s(self.rest_null, self.quat.shape[0])
-
-
-class Bachmann(Estimator[BachmannParams, BachmannState]):
+class Bachmann(CompiledEstimator[BachmannParams]):
     """Bachmann's quaternion complementary filter (``--method bachmann``), 000 Appendix A.
 
     Full MARG with ``mag``; gyroscope + accelerometer with ``mag=None`` (heading from the
@@ -290,144 +253,88 @@ class Bachmann(Estimator[BachmannParams, BachmannState]):
     MAG_IGNORED or MAG_DISTURBED says why), 3 field reference not measured yet
     (gravity-only; flagged MAG_IGNORED), 0 otherwise;
     ``gyr_null_rad_s`` (N, 3) the gyro null subtracted (``gyr_null_rest_s``), rad/s.
+
+    State (:class:`~margtrack.estimator.compiled.CompiledState`, ``state.get(name)``, each
+    (S, width)): ``quat`` ``q̂``; ``correction_step`` the held step ``Δv_E`` (earth frame,
+    rad/2); ``phi`` its criterion; ``dip_rad`` the measured field inclination (NaN: not
+    yet; kept across restarts); ``field_reference`` the unit ``n`` from it;
+    ``restart_elapsed_s`` time since a restart while its raised gain lasts (-1: none);
+    ``awaiting_field`` 1 until a field sample sets the heading after a (re)start; ``cycle``
+    samples since the reset (the correction schedule); ``gyr_bias_rad_s`` the gyro null in
+    use (the still start's mean rate; 0 without one); the rest null's progress
+    (``rest_null_*``). A restart after a gap starts the orientation and the correction
+    afresh and keeps the rest (what is known of the sensor); after a sensor has been
+    tracking (or a ``reset(q0)``) it raises the gain (``restart_gain``).
     """
 
     name = "bachmann"
     params_type = BachmannParams
-    kept_on_restart = ("dip_rad", "started")
-    # derived coefficients: (params, measured dips) -> (m, n per sensor, all dips known),
-    # so that live update() calls do not rebuild the references every sample
-    _references: tuple[Any, Array, Array, bool] | None = None
+    kernel = kernel
+    state_layout: ClassVar[Mapping[str, tuple[int, int]]] = {
+        "quat": (kernel.B_Q, 4),
+        "correction_step": (kernel.B_STEP, 3),
+        "phi": (kernel.B_PHI, 1),
+        "restart_elapsed_s": (kernel.B_SINCE, 1),
+        "awaiting_field": (kernel.B_AWAIT, 1),
+        "cycle": (kernel.B_CYCLE, 1),
+        "sensor_index": (kernel.B_INDEX, 1),
+        "dip_rad": (kernel.B_DIP, 1),
+        "field_reference": (kernel.B_REF, 3),
+        "gyr_bias_rad_s": (kernel.B_NULL + rest_null_kernel.RN_NULL, 3),
+        **rest_null_layout(kernel.B_NULL),
+    }
+    outputs_layout = (
+        ("phi", 1),
+        ("correction_rad_s", 3),
+        ("new_correction", 1),
+        ("degenerate", 1),
+        ("gyr_null_rad_s", 3),
+    )
 
-    def _new_state(self, quat0: Array) -> BachmannState:
-        n = quat0.shape[0]
-        return BachmannState(
-            quat=np.array(quat0, dtype=np.float64),
-            correction_step=np.zeros((n, 3)),
-            phi=np.full(n, np.nan),
-            dip_rad=np.full(n, np.nan),
-            restart_elapsed_s=np.full(n, -1.0),
-            started=np.zeros(n, dtype=bool),
-            awaiting_field=np.zeros(n, dtype=bool),
-            rest_null=RestNullState.new(n),
+    def _coefficients(self) -> Array:
+        p = self.params
+        c = np.zeros(kernel.N_COEF)
+        c[kernel.C_GAIN] = p.gain
+        c[kernel.C_MAG_WEIGHT] = p.mag_weight
+        c[kernel.C_INTERVAL] = p.correction_interval
+        c[kernel.C_ROUND_ROBIN] = 1.0 if p.round_robin else 0.0
+        c[kernel.C_RESTART_GAIN] = p.restart_gain
+        c[kernel.C_USE_GYR] = 1.0 if self.uses_gyr else 0.0
+        m = p.gravity_unit()
+        c[kernel.C_GRAV : kernel.C_GRAV + 3] = m
+        fixed = p.mag_unit()
+        if fixed is not None:
+            c[kernel.C_FIXED_REF] = 1.0
+            c[kernel.C_REF : kernel.C_REF + 3] = fixed
+            usable, *minv = kernel.cofactors(*m, *fixed)
+            c[kernel.C_MINV : kernel.C_MINV + 7] = minv
+            c[kernel.C_HAS_REF] = 1.0 if usable else 0.0
+        c[kernel.C_NED] = 1.0 if p.frame == "NED" else 0.0
+        if p.gravity_reference is not None or p.mag_reference is not None:
+            arc, triad = _turns(p)
+            c[kernel.C_TURN] = 1.0
+            c[kernel.C_TURN_ARC : kernel.C_TURN_ARC + 4] = arc
+            c[kernel.C_TURN_TRIAD : kernel.C_TURN_TRIAD + 4] = triad
+        c[kernel.C_NULL : kernel.C_NULL + rest_null_kernel.N_RC] = rest_null_coefficients(
+            p.gyr_null_rest_s
         )
+        return c
 
-    def _restart(self, state: BachmannState, quat0: Array, rows: NDArray[np.intp]) -> None:
-        """Fresh orientation and correction; dip, gyro null and schedule kept; after a
-        sensor has been tracking, the raised gain of ``restart_gain``; the heading is set
-        at the first usable field sample (a no-op after a TRIAD start)."""
-        super()._restart(state, quat0, rows)
-        if state.started.shape == (state.quat.shape[0],):
-            again = rows[state.started[rows]]
-            state.restart_elapsed_s[again] = 0.0
-            state.started[rows] = True
-        if state.awaiting_field.shape == (state.quat.shape[0],):
-            state.awaiting_field[rows] = True
+    def _new_rows(self, n_sensors: int) -> CompiledState:
+        """Fresh rows, each knowing its sensor's index (its round-robin turn)."""
+        state = super()._new_rows(n_sensors)
+        state.rows[:, kernel.B_INDEX] = np.arange(n_sensors)
+        return state
 
-    def reset(self, q0: ArrayLike | None = None) -> None:
-        """As :meth:`Estimator.reset`; a given ``q0`` counts as a start (a later restart
-        after a gap raises the gain)."""
-        super().reset(q0)
-        if self._state is not None:
-            self._state.started[:] = True
+    @CompiledEstimator.state.setter  # type: ignore[attr-defined]
+    def state(self, value: CompiledState | None) -> None:
+        """Set the state; one whose orientation is not finite and non-zero is refused."""
+        if value is not None:
+            check_rows(value, kernel.N_ROW, kernel.B_Q, value.rows[:, kc.K_READY] > 0)
+        CompiledEstimator.state.fset(self, value)  # type: ignore[attr-defined]
 
-    def _initial_quat(self, acc0: Array, mag0: Array | None) -> Array:
-        """TRIAD (or shortest arc) start, turned onto explicit reference vectors if given."""
-        q0 = super()._initial_quat(acc0, mag0)
-        p = self.params
-        if p.gravity_reference is None and p.mag_reference is None:
-            return q0
-        up, m = frames.up(p.frame), p.gravity_unit()
-        if mag0 is None:
-            turn = quat.shortest_arc(up, m)
-        else:  # the rotation taking (up, north) onto (m, n): TRIAD of the references
-            n = p.mag_unit() if p.mag_reference is not None else frames.mag_reference(p.frame)
-            std = _triad_axes(up, frames.mag_reference(p.frame))
-            turn = quat.from_matrix(_triad_axes(m, n) @ std.T)
-        return quat.multiply(turn, q0)
-
-    def _dips_known(self, state: BachmannState) -> bool:
-        """Whether every sensor's dip is measured (cached with the references)."""
-        cached = self._references
-        if cached is not None and cached[0][2] == state.dip_rad.tobytes():
-            return cached[3]
-        return not np.isnan(state.dip_rad).any()
-
-    def _coefficients(self, state: BachmannState, n_sensors: int) -> tuple[Array, Array]:
-        """Unit gravity reference (3,) and field references (S, 3) (NaN rows: not known
-        yet), cached per parameters and measured dips."""
-        p = self.params
-        key = (p, n_sensors, state.dip_rad.tobytes())
-        if self._references is None or self._references[0] != key:
-            fixed = p.mag_unit()
-            if fixed is not None:
-                refs = np.tile(fixed, (n_sensors, 1))
-            else:  # deg and back, exactly as frames.mag_reference(frame, dip_deg) does
-                refs = _field_references(p.frame, np.degrees(state.dip_rad))
-            known = not np.isnan(state.dip_rad).any()
-            self._references = (key, p.gravity_unit(), refs, known)
-        return self._references[1], self._references[2]
-
-    def _process(
-        self,
-        state: BachmannState,
-        gyr: Array | None,
-        acc: Array,
-        mag: Array | None,
-        dt: Array,
-    ) -> tuple[Array, dict[str, NDArray[Any]]]:
-        p = self.params
-        n_sensors, n = acc.shape[0], acc.shape[1]
-        if state.dip_rad.shape != (n_sensors,):  # a state built by hand: measure afresh
-            state.dip_rad = np.full(n_sensors, np.nan)
-        if state.restart_elapsed_s.shape != (n_sensors,):
-            state.restart_elapsed_s = np.full(n_sensors, -1.0)
-        if state.started.shape != (n_sensors,):
-            state.started = np.zeros(n_sensors, dtype=bool)
-        if state.awaiting_field.shape != (n_sensors,):
-            state.awaiting_field = np.zeros(n_sensors, dtype=bool)
-        if mag is not None and p.mag_unit() is None and not self._dips_known(state):
-            todo = np.flatnonzero(np.isnan(state.dip_rad))
-            rows, dips = _measured_dips(acc[todo], mag[todo])
-            state.dip_rad[todo[rows]] = dips
-        grav, refs = self._coefficients(state, n_sensors)
-        outputs: dict[str, NDArray[Any]] = {}
-        if gyr is not None:
-            gyr, outputs["gyr_null_rad_s"] = subtract_rest_null(
-                state.rest_null, gyr, acc, mag, dt, p.gyr_null_rest_s
-            )
-        interval = p.correction_interval
-        phase = np.zeros(n_sensors, dtype=np.int64)
-        if p.round_robin:
-            phase = np.arange(n_sensors, dtype=np.int64) % interval
-        empty = np.empty((n_sensors, 0, 3))
-        q = np.empty((n_sensors, n, 4))
-        phi = np.empty((n_sensors, n))
-        corr = np.empty((n_sensors, n, 3))
-        new = np.empty((n_sensors, n), dtype=np.bool_)
-        flags = np.empty((n_sensors, n), dtype=np.int8)
-        bad = kernel.bachmann(
-            state.quat, state.correction_step, state.phi,
-            empty if gyr is None else gyr, acc, empty if mag is None else mag, dt,
-            grav, refs, p.gain, p.mag_weight, interval, phase, state.cycle,
-            state.restart_elapsed_s, p.restart_gain, state.awaiting_field,
-            q, phi, corr, new, flags,
-        )  # fmt: skip
-        if bad:  # the state is a working copy: the estimator is left as it was
-            raise ValueError("the state quaternion must be finite and non-zero")
-        state.cycle += n
-        outputs.update(phi=phi, correction_rad_s=corr, new_correction=new, degenerate=flags)
-        return q, outputs
-
-    def _method_flags(self, outputs: Any) -> NDArray[np.uint16] | None:
-        """``degenerate`` on the flag schema: 1 → ACC_IGNORED, 3 → MAG_IGNORED (2, a zero
-        field, was flagged by the screening already: MAG_IGNORED or MAG_DISTURBED)."""
-        return _FLAGS_OF_CODE[outputs["degenerate"]]
-
-
-#: Flag bits of each ``degenerate`` code, indexed by it: OK 0, ZERO_ACC 1, ZERO_MAG 2 (the
-#: screening's flag stands), NO_FIELD_REFERENCE 3
-_FLAGS_OF_CODE = np.array([0, Flag.ACC_IGNORED, 0, Flag.MAG_IGNORED], dtype=np.uint16)
+    def _run_arrays(self, *args: Any, **kwargs: Any) -> Estimate:
+        return with_output_types(super()._run_arrays(*args, **kwargs), _OUTPUT_TYPES)
 
 
 @dataclass(frozen=True)
@@ -460,6 +367,23 @@ class BachmannAccMag(Bachmann):
     params_type = BachmannAccMagParams
     uses_gyr = False
     mag_optional = False
+    outputs_layout = Bachmann.outputs_layout[:-1]  # no gyroscope, no gyro null
+    state_layout: ClassVar[Mapping[str, tuple[int, int]]] = {
+        k: v
+        for k, v in Bachmann.state_layout.items()
+        if k != "gyr_bias_rad_s" and not k.startswith("rest_null")
+    }
+
+    def update(
+        self,
+        gyr: ArrayLike | None,
+        acc: ArrayLike,
+        mag: ArrayLike | None = None,
+        dt: float | None = None,
+    ) -> Array:
+        """As :meth:`Bachmann.update`; a gyroscope sample, if given, is dropped before the
+        screening, as ``run`` drops the series (so it is neither used nor flagged)."""
+        return super().update(None, acc, mag, dt)
 
 
 # -- Appendix A written out, one sample, for reference and tests ---------------------------

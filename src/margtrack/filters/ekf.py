@@ -37,23 +37,35 @@ Two properties of the model as 001 writes it:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
+import itertools
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from margtrack import frames
-from margtrack.estimator import Estimator, Flag, Params, State, param
+from margtrack.estimator import Estimate, Params, param
+from margtrack.estimator.compiled import CompiledEstimator, CompiledState
 from margtrack.estimators.prefilter import dip_rad_or_nan
-from margtrack.filters._rest_null import RestNullState, rest_null_rad_s, subtract_rest_null
+from margtrack.filters._rest_null import (
+    check_rows,
+    rest_null_coefficients,
+    rest_null_layout,
+    with_output_types,
+)
 from margtrack.frames import STANDARD_GRAVITY_M_S2
+from margtrack.kernels import contract as kc
 from margtrack.kernels import ekf as kernel
+from margtrack.kernels import rest_null as rest_null_kernel
+from margtrack.kernels.davenport import field_from_dip
 
 Array = NDArray[np.float64]
 PerAxis = float | tuple[float, float, float]
 
-__all__ = ["MarinsEkf", "MarinsEkfParams", "MarinsEkfState", "initial_covariance"]
+__all__ = ["MarinsEkf", "MarinsEkfParams", "initial_covariance"]
 
 _PER_AXIS = ("tau_s", "rate_noise_rad_s_sqrt_hz", "gyr_noise_rad_s_sqrt_hz")
 
@@ -198,31 +210,6 @@ class MarinsEkfParams(Params):
         )
 
 
-@dataclass
-class MarinsEkfState(State):
-    """Filter state per sensor: quaternion, rate, the 7x7 covariance and the reference dip.
-
-    quat : (S, 4) quaternion state (unit after every update; an initial state set by hand
-        may have any non-zero norm, which eqs. 12-15 account for).
-    gyr_est_rad_s : (S, 3) rate state ω, rad/s, body frame.
-    cov : (S, 7, 7) covariance of ``[ω (rad/s)², q (dimensionless)]``.
-    dip_rad : (S,) reference dip, rad, positive down; NaN until measured
-        (``mag_dip_ref_deg`` None); kept across restarts.
-    rest_null : progress of the gyro null taken from the still start (kept on restarts).
-
-    A restart after a gap starts ``quat``, ``gyr_est_rad_s`` and ``cov`` afresh.
-    """
-
-    gyr_est_rad_s: Array = field(default_factory=lambda: np.zeros((0, 3)))
-    cov: Array = field(default_factory=lambda: np.zeros((0, 7, 7)))
-    dip_rad: Array = field(default_factory=lambda: np.zeros(0))
-    rest_null: RestNullState = field(default_factory=lambda: RestNullState.new(0))
-
-    def gyr_bias_rad_s(self) -> Array | None:
-        """(S, 3) the gyro null in use (the still start's mean rate; 0 without one), rad/s."""
-        return rest_null_rad_s(self.rest_null, self.quat.shape[0])
-
-
 def initial_covariance(n_sensors: int, rate_std_rad_s: float, quat_std: float) -> Array:
     """Diagonal initial covariance (S, 7, 7): rate variance, then quaternion variance."""
     cov = np.zeros((n_sensors, 7, 7))
@@ -232,7 +219,7 @@ def initial_covariance(n_sensors: int, rate_std_rad_s: float, quat_std: float) -
     return cov
 
 
-class MarinsEkf(Estimator[MarinsEkfParams, MarinsEkfState]):
+class MarinsEkf(CompiledEstimator[MarinsEkfParams]):
     """Marins' 7-state quaternion EKF (``--method ekf``), 001 sections 3-4.
 
     Needs a magnetometer. Inputs per sample: gyroscope rad/s, accelerometer m/s²,
@@ -244,7 +231,7 @@ class MarinsEkf(Estimator[MarinsEkfParams, MarinsEkfState]):
     - ``gyr_est_rad_s`` (N, 3): the rate state ω after each update, rad/s;
     - ``cov_diag`` (N, 7): the covariance diagonal, order ``[ω_x, ω_y, ω_z, q_w, q_x, q_y,
       q_z]`` ((rad/s)², dimensionless); the full matrix after the last sample is
-      ``state.cov``;
+      ``state.get("cov")`` (S, 49), row-major;
     - ``iterations`` (N,) int32: Gauss-Newton updates applied (0 for approach 1);
     - ``gyr_null_rad_s`` (N, 3): the gyro null subtracted (``gyr_null_rest_s``), rad/s;
     - ``degenerate`` (N,) int8, method detail: 0 ok; 2 zero magnetometer (updated from
@@ -254,6 +241,15 @@ class MarinsEkf(Estimator[MarinsEkfParams, MarinsEkfState]):
       the gyroscope alone, flagged ACC_IGNORED and MAG_IGNORED); 5 innovation covariance
       not positive definite (predicted only, flagged ACC_IGNORED and MAG_IGNORED).
 
+    State (:class:`~margtrack.estimator.compiled.CompiledState`, ``state.get(name)``, each
+    (S, width)): ``quat`` the quaternion state (unit after every update; one set by hand
+    may have any non-zero norm, which eqs. 12-15 account for); ``gyr_est_rad_s`` the rate
+    state ω; ``cov`` the 7x7 covariance of ``[ω (rad/s)², q]``, row-major; ``dip_rad`` the
+    reference dip measured at the first valid sample (NaN until then, and when
+    ``mag_dip_ref_deg`` is given); ``field_reference`` the unit field from it;
+    ``gyr_bias_rad_s`` the gyro null in use (the still start's mean rate; 0 without one)
+    and the rest null's progress (``rest_null_*``).
+
     A restart after a gap keeps the dip and the gyro null and starts the rate, the
     quaternion and the whole covariance afresh (``init_*``): the new start is TRIAD's, not
     the old estimate's.
@@ -262,67 +258,69 @@ class MarinsEkf(Estimator[MarinsEkfParams, MarinsEkfState]):
     name = "ekf"
     params_type = MarinsEkfParams
     mag_optional = False
-    kept_on_restart = ("dip_rad",)
+    kernel = kernel
+    state_layout: ClassVar[Mapping[str, tuple[int, int]]] = {
+        "gyr_est_rad_s": (kernel.E_X, 3),
+        "quat": (kernel.E_X + 3, 4),
+        "cov": (kernel.E_P, 49),
+        "dip_rad": (kernel.E_DIP, 1),
+        "field_reference": (kernel.E_FIELD, 3),
+        "gyr_bias_rad_s": (kernel.E_NULL + rest_null_kernel.RN_NULL, 3),
+        **rest_null_layout(kernel.E_NULL),
+    }
+    outputs_layout = (
+        ("gyr_est_rad_s", 3),
+        ("cov_diag", 7),
+        ("iterations", 1),
+        ("degenerate", 1),
+        ("gyr_null_rad_s", 3),
+    )
 
-    def _new_state(self, quat0: Array) -> MarinsEkfState:
+    def _coefficients(self) -> Array:
         p = self.params
-        q = np.array(quat0, dtype=np.float64)
-        return MarinsEkfState(
-            quat=q,
-            gyr_est_rad_s=np.zeros((q.shape[0], 3)),
-            cov=initial_covariance(q.shape[0], p.init_rate_std_rad_s, p.init_quat_std),
-            dip_rad=np.full(q.shape[0], np.nan),
-            rest_null=RestNullState.new(q.shape[0]),
+        c = np.zeros(kernel.N_COEF)
+        c[kernel.C_APPROACH] = p.approach
+        c[kernel.C_TAU : kernel.C_TAU + 3] = p.axis_values("tau_s")
+        rate = p.axis_values("rate_noise_rad_s_sqrt_hz")
+        gyr = p.axis_values("gyr_noise_rad_s_sqrt_hz")
+        c[kernel.C_RATE_VAR : kernel.C_RATE_VAR + 3] = rate**2
+        c[kernel.C_GYR_VAR : kernel.C_GYR_VAR + 3] = gyr**2
+        c[kernel.C_QUAT_VAR] = p.quat_noise_per_sqrt_hz**2
+        c[kernel.C_ACC_VAR] = p.acc_noise_m_s2_sqrt_hz**2
+        c[kernel.C_MAG_VAR] = p.mag_noise_rel_sqrt_hz**2
+        c[kernel.C_GRAVITY2] = p.gravity_m_s2**2
+        c[kernel.C_MAG_WEIGHT] = p.mag_weight
+        c[kernel.C_GN_TOL] = p.gn_tolerance
+        c[kernel.C_GN_MAX_IT] = p.gn_max_iterations
+        up, north = frames.up(p.frame), frames.mag_reference(p.frame, dip_deg=0.0)
+        c[kernel.C_UP : kernel.C_UP + 3] = up
+        c[kernel.C_NORTH : kernel.C_NORTH + 3] = north
+        dip = dip_rad_or_nan(p.mag_dip_ref_deg)
+        c[kernel.C_DIP] = dip
+        c[kernel.C_FIELD : kernel.C_FIELD + 3] = field_from_dip(
+            math.sin(dip), math.cos(dip), *up, *north
         )
-
-    def _process(
-        self,
-        state: MarinsEkfState,
-        gyr: Array | None,
-        acc: Array,
-        mag: Array | None,
-        dt: Array,
-    ) -> tuple[Array, dict[str, NDArray[Any]]]:
-        assert gyr is not None and mag is not None  # uses_gyr, mag_optional = False
-        p = self.params
-        n_sensors, n = acc.shape[0], acc.shape[1]
-        shapes = (state.gyr_est_rad_s.shape, state.cov.shape, state.dip_rad.shape)
-        if shapes != ((n_sensors, 3), (n_sensors, 7, 7), (n_sensors,)):
-            raise ValueError(
-                f"the state must hold gyr_est_rad_s ({n_sensors}, 3), cov ({n_sensors}, 7, 7) "
-                f"and dip_rad ({n_sensors},), got {shapes[0]}, {shapes[1]} and {shapes[2]}"
-            )
-        norms = np.linalg.norm(state.quat, axis=1)
-        if not np.all(np.isfinite(norms) & (norms > 0)):
-            raise ValueError("the state quaternion must be finite and non-zero")
-        # one kernel specialisation: numba types read-only arrays (a Recording's) apart
-        gyr, acc, mag = (x if x.flags.writeable else x.copy() for x in (gyr, acc, mag))
-        gyr, null = subtract_rest_null(state.rest_null, gyr, acc, mag, dt, p.gyr_null_rest_s)
-        quat = np.empty((n_sensors, n, 4))
-        rate = np.empty((n_sensors, n, 3))
-        cov_diag = np.empty((n_sensors, n, 7))
-        iterations = np.empty((n_sensors, n), dtype=np.int32)
-        flags = np.empty((n_sensors, n), dtype=np.int8)
-        kernel.marins_ekf(
-            p.approach, state.quat, state.gyr_est_rad_s, state.cov, state.dip_rad,
-            gyr, acc, mag, dt, frames.up(p.frame), frames.mag_reference(p.frame, dip_deg=0.0),
-            dip_rad_or_nan(p.mag_dip_ref_deg), p.axis_values("tau_s"),
-            p.axis_values("rate_noise_rad_s_sqrt_hz") ** 2,
-            p.axis_values("gyr_noise_rad_s_sqrt_hz") ** 2,
-            p.quat_noise_per_sqrt_hz**2, p.acc_noise_m_s2_sqrt_hz**2,
-            p.mag_noise_rel_sqrt_hz**2, p.gravity_m_s2**2, p.mag_weight, p.gn_tolerance,
-            p.gn_max_iterations, quat, rate, cov_diag, iterations, flags,
+        c[kernel.C_INIT_RATE_VAR] = p.init_rate_std_rad_s**2
+        c[kernel.C_INIT_QUAT_VAR] = p.init_quat_std**2
+        c[kernel.C_GEN] = next(_GENERATIONS)
+        c[kernel.C_NULL : kernel.C_NULL + rest_null_kernel.N_RC] = rest_null_coefficients(
+            p.gyr_null_rest_s
         )
-        outputs = {"gyr_est_rad_s": rate, "cov_diag": cov_diag, "iterations": iterations,
-                   "degenerate": flags, "gyr_null_rad_s": null}
-        return quat, outputs
+        return c
 
-    def _method_flags(self, outputs: Any) -> NDArray[np.uint16] | None:
-        """``degenerate`` on the flag schema (see the class docstring)."""
-        return _FLAGS_OF_CODE[outputs["degenerate"]]
+    @CompiledEstimator.state.setter  # type: ignore[attr-defined]
+    def state(self, value: CompiledState | None) -> None:
+        """Set the state; one whose quaternion is not finite and non-zero is refused."""
+        if value is not None:
+            check_rows(value, kernel.N_ROW, kernel.E_X + 3, value.rows[:, kc.K_READY] > 0)
+        CompiledEstimator.state.fset(self, value)  # type: ignore[attr-defined]
+
+    def _run_arrays(self, *args: Any, **kwargs: Any) -> Estimate:
+        return with_output_types(super()._run_arrays(*args, **kwargs), _OUTPUT_TYPES)
 
 
-_BOTH = Flag.ACC_IGNORED | Flag.MAG_IGNORED
-#: Flag bits of each ``degenerate`` code, indexed by it: OK 0, ZERO_ACC 1, ZERO_MAG 2 (the
-#: screening's flag stands; the accelerometer was used), PARALLEL 3, SOLVER_FAILED 4, NOT_PD 5
-_FLAGS_OF_CODE = np.array([0, Flag.ACC_IGNORED, 0, _BOTH, _BOTH, _BOTH], dtype=np.uint16)
+#: the generations of coefficient vectors: a row's interval constants are recomputed when
+#: the coefficients change (parameters retuned, a state moved between estimators)
+_GENERATIONS = itertools.count(1)
+#: outputs as they were before the compiled path: width-1 series squeezed to (…, N), typed
+_OUTPUT_TYPES = {"iterations": np.int32, "degenerate": np.int8}

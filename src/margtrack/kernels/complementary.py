@@ -18,6 +18,36 @@ gravity-only step, ``dt = 0`` integrates nothing. The kernel is safe for any fin
 the only division by a data-dependent quantity is the normalisation of eq. 27, which
 scales by the largest component when ``|q|²`` overflows (a rate beyond ~1e150 rad/s) and
 keeps the previous orientation when the step itself is not finite.
+
+On ``kernels/contract.py``: :func:`_start`, :func:`_step`, :func:`_hold` over one sensor's
+row and the four entry points ``run``, ``update``, ``update_one``, ``start``.
+
+Row layout after the contract's slots (offsets ``B_*``):
+
+- ``B_Q`` (4) ``q̂``, body to earth (the output frame, or the frame of explicit
+  reference vectors);
+- ``B_STEP`` (3) the held correction step ``Δv_E`` (earth frame); ``B_PHI`` its criterion
+  (NaN before the first);
+- ``B_SINCE`` time since a restart while its raised gain lasts, s (-1: none);
+- ``B_AWAIT`` 1 from a (re)start until a usable field sample sets the heading;
+- ``B_TURN`` 1 from a start until its first step turns the start onto explicit references;
+- ``B_CYCLE`` samples seen since the reset (stepped or held: the correction schedule, the
+  same count in every sensor's row); ``B_INDEX`` the sensor's index (its round-robin turn);
+- ``B_DIP`` the field inclination measured at the first usable sample, rad (NaN: not yet);
+  ``B_REF`` (3) the unit field reference ``n`` from it (NaN: not known); ``B_MINV`` (7)
+  the cofactors of ``M0`` (c00, c01, c02, c11, c12, c22) and ``1 / (2 det M0)``;
+  ``B_HAS_REF`` 1 when that reference is usable;
+- ``B_NULL`` (``rest_null.N_REST_NULL``) the gyro null from the still start.
+
+A restart keeps ``B_DIP`` to ``B_NULL`` and the schedule (what belongs to the sensor).
+Extra outputs per sample (``x_out``): φ, the correction as an earth-frame rate (3), 1 at a
+new correction, the ``degenerate`` code, then (with a gyroscope) the gyro null (3).
+
+Coefficients (``C_*``, after the contract's): gain k, ρ, correction interval, round robin,
+restart gain, whether the gyroscope is used, ``m`` (3), whether ``n`` is given, the given
+``n`` (3) with its ``B_MINV``-like cofactors (7) and usability, the frame (1: NED), whether
+starts are turned onto explicit references and the two turns (start without / with a
+field, 4 each), and the rest null's coefficients.
 """
 
 from __future__ import annotations
@@ -26,7 +56,10 @@ import math
 
 from numba import njit
 
+from margtrack.kernels import contract, rest_null
 from margtrack.kernels._quat import cross, mul
+from margtrack.kernels.screen import ACC_IGNORED, MAG_IGNORED
+from margtrack.kernels.triad import PARALLEL_SINE
 
 OK = 0
 ZERO_ACC = 1  # no correction at this sample: the accelerometer reads zero
@@ -36,6 +69,50 @@ NO_FIELD_REFERENCE = 3  # gravity-only correction: the sensor's field reference 
 #: the heading is set from a field sample only when the field seen in the earth frame is
 #: at least this far from vertical (sine of 5 deg: MIN_REFERENCE_ANGLE_DEG of the filter)
 HEADING_MIN_SINE = 0.08715574274765817
+#: a measured dip is limited to ±(90 - 5) deg (MIN_REFERENCE_ANGLE_DEG of the filter), rad
+DIP_LIMIT_RAD = math.radians(85.0)
+
+# -- coefficients (after the contract's screening coefficients) ---------------------------
+C_GAIN = 0  # k, 1/s
+C_MAG_WEIGHT = 1  # ρ
+C_INTERVAL = 2  # a new correction every n-th sample
+C_ROUND_ROBIN = 3  # 1: sensor s corrects at cycles c = s (mod n)
+C_RESTART_GAIN = 4  # 1/s
+C_USE_GYR = 5  # 1: integrate the gyroscope (0: acc/mag-only tracking)
+C_GRAV = 6  # 3: unit gravity reference m
+C_FIXED_REF = 9  # 1: the field reference n is given (else measured per sensor)
+C_REF = 10  # 3: the given n
+C_MINV = 13  # 7: its cofactors of M0 and 1 / (2 det M0)
+C_HAS_REF = 20  # 1: the given n is usable
+C_NED = 21  # 1: the frame is NED (for the reference from a measured dip)
+C_TURN = 22  # 1: starts are turned onto explicit reference vectors
+C_TURN_ARC = 23  # 4: the turn of a start from the accelerometer alone
+C_TURN_TRIAD = 27  # 4: the turn of a TRIAD start
+C_NULL = 31  # rest_null.N_RC: the gyro null's coefficients
+N_COEF = C_NULL + rest_null.N_RC
+
+# -- one sensor's row (after the contract's slots; module docstring) --------------------
+B_Q = contract.N_CONTRACT
+B_STEP = B_Q + 4
+B_PHI = B_STEP + 3
+B_SINCE = B_PHI + 1
+B_AWAIT = B_SINCE + 1
+B_TURN = B_AWAIT + 1
+B_CYCLE = B_TURN + 1
+B_INDEX = B_CYCLE + 1
+B_DIP = B_INDEX + 1
+B_REF = B_DIP + 1
+B_MINV = B_REF + 3
+B_HAS_REF = B_MINV + 7
+B_NULL = B_HAS_REF + 1
+N_ROW = B_NULL + rest_null.N_REST_NULL
+
+# -- extra outputs per sample ---------------------------------------------------------
+X_PHI = 0
+X_CORR = 1  # 3
+X_NEW = 4
+X_CODE = 5
+X_NULL = 6  # 3, with a gyroscope only
 
 
 @njit(cache=True, inline="always")
@@ -89,179 +166,240 @@ def _set_heading(qw, qx, qy, qz, bx, by, bz, mx, my, mz, nx, ny, nz):
     return qw, qx, qy, qz, False
 
 
-@njit(cache=True)
-def bachmann(
-    quat_state,
-    step_state,
-    phi_state,
-    gyr,
-    acc,
-    mag,
-    dt,
-    grav_ref,
-    mag_ref,
-    gain,
-    mag_weight,
-    interval,
-    phase,
-    cycle0,
-    boost_state,
-    boost_gain,
-    awaiting_state,
-    quat_out,
-    phi_out,
-    corr_out,
-    new_out,
-    flags_out,
-):
-    """Run S filters over N samples; state arrays are updated in place.
 
-    quat_state (S, 4) in/out: ``q̂`` before sample 0, replaced by the last one.
-    step_state (S, 3) in/out: the held correction step ``Δv_E`` (earth frame).
-    phi_state (S,) in/out: criterion of the held correction.
-    gyr (S, N, 3) rad/s, or (S, 0, 3) for accelerometer/magnetometer-only tracking.
-    acc (S, N, 3) any unit; mag (S, N, 3) any unit, or (S, 0, 3) without magnetometer.
-    dt (N,) s; dt[0] = 0 leaves the first output at the state (the correction is still
-    computed there). grav_ref (3,) unit ``m``; mag_ref (S, 3) unit ``n`` per sensor.
-    gain ``k`` 1/s; mag_weight ``ρ``; interval: a new correction every ``interval``
-    cycles, at cycles ``c`` with ``(c - phase[s]) % interval == 0``; phase (S,) in
-    [0, interval); cycle0: cycle number of sample 0. A NaN row of mag_ref (field
-    reference not known yet) gives gravity-only steps.
-    boost_state (S,) in/out: time since a restart, s (negative: none under way). While
-    it is under way the gain is ``1 / (t + 1 / boost_gain)`` (t counted up by each dt
-    before the step), the gain that makes the correction the mean of the measurements
-    since the restart, until that falls to k (then boost_state becomes -1). Nothing
-    happens when boost_gain <= k.
-    awaiting_state (S,) bool in/out: True until a usable field sample sets the heading:
-    at the first field sample (non-zero, known reference, seen at least 5 deg from
-    vertical) q̂ is turned about the gravity reference so that the field seen in the
-    earth frame points to the reference's heading, and the flag clears. (A start from
-    the accelerometer alone leaves the heading arbitrary, which ``ρ k`` would take
-    minutes to correct; after a TRIAD start the turn is zero.)
-    Outputs (S, N, ...): quat_out q̂; phi_out φ of the held correction; corr_out the
-    applied correction as earth-frame rate ``ω_ε = 2 k Δv_E`` (rad/s, k as applied);
-    new_out 1 where a new correction was computed; flags_out (at new ones) OK,
-    ZERO_ACC, ZERO_MAG or NO_FIELD_REFERENCE.
-    Returns the number of sensors whose state quaternion was zero or not finite (left
-    untouched, outputs not written; the caller raises).
-    """
-    n_sensors, n_samples = acc.shape[0], acc.shape[1]
-    use_gyr = gyr.shape[1] > 0
-    use_mag = mag.shape[1] > 0
-    mx, my, mz = grav_ref[0], grav_ref[1], grav_ref[2]
-    start_gain = boost_gain > gain
-    bad = 0
-    for s in range(n_sensors):
-        nx, ny, nz = mag_ref[s, 0], mag_ref[s, 1], mag_ref[s, 2]
-        has_ref = not (math.isnan(nx) or math.isnan(ny) or math.isnan(nz))
-        # M0 = 2 I - m mᵀ - n nᵀ and its inverse by cofactors (symmetric)
-        a00 = 2.0 - mx * mx - nx * nx
-        a01 = -mx * my - nx * ny
-        a02 = -mx * mz - nx * nz
-        a11 = 2.0 - my * my - ny * ny
-        a12 = -my * mz - ny * nz
-        a22 = 2.0 - mz * mz - nz * nz
-        c00 = a11 * a22 - a12 * a12
-        c01 = a02 * a12 - a01 * a22
-        c02 = a01 * a12 - a02 * a11
-        c11 = a00 * a22 - a02 * a02
-        c12 = a01 * a02 - a00 * a12
-        c22 = a00 * a11 - a01 * a01
-        det = a00 * c00 + a01 * c01 + a02 * c02  # 2 sin² γ
-        if not det > 1e-12:  # no reference, or one along gravity: gravity-only steps
-            has_ref = False
-            det = 1.0
-        half_det_inv = 0.5 / det
-        qw, qx, qy, qz = quat_state[s, 0], quat_state[s, 1], quat_state[s, 2], quat_state[s, 3]
-        n2 = qw * qw + qx * qx + qy * qy + qz * qz
-        if not (n2 > 0.0 and n2 < math.inf):  # a state set by hand: refused by the caller
-            bad += 1
-            continue
-        vx, vy, vz = step_state[s, 0], step_state[s, 1], step_state[s, 2]
-        phi = phi_state[s]
-        since = boost_state[s] if start_gain else -1.0
-        offset = interval - phase[s]
-        awaiting = awaiting_state[s] and use_mag and has_ref
-        for i in range(n_samples):
-            new = (cycle0 + i + offset) % interval == 0
-            flag = OK
-            if awaiting:
-                qw, qx, qy, qz, awaiting = _set_heading(
-                    qw, qx, qy, qz, mag[s, i, 0], mag[s, i, 1], mag[s, i, 2],
-                    mx, my, mz, nx, ny, nz,
-                )
-            if new:
-                # steps 1-6 of 000's Fig. 5, in the earth frame (module docstring)
-                ax, ay, az = acc[s, i, 0], acc[s, i, 1], acc[s, i, 2]
-                na = math.sqrt(ax * ax + ay * ay + az * az)
-                if na > 0.0:
-                    hx, hy, hz = _rotate(qw, qx, qy, qz, ax / na, ay / na, az / na)
-                    ex, ey, ez = hx - mx, hy - my, hz - mz  # R (h - ĥ) (eq. 15)
-                    phi = ex * ex + ey * ey + ez * ez  # eq. 19, gravity part
-                    rx, ry, rz = cross(hx, hy, hz, mx, my, mz)  # R (h × ĥ)
-                    vx, vy, vz = 0.5 * rx, 0.5 * ry, 0.5 * rz  # minimum-norm step
-                    if use_mag:
-                        bx, by, bz = mag[s, i, 0], mag[s, i, 1], mag[s, i, 2]
-                        nb = math.sqrt(bx * bx + by * by + bz * bz)
-                        if nb > 0.0 and not has_ref:
-                            flag = NO_FIELD_REFERENCE
-                        elif nb > 0.0:
-                            bx, by, bz = _rotate(qw, qx, qy, qz, bx / nb, by / nb, bz / nb)
-                            ex, ey, ez = bx - nx, by - ny, bz - nz  # R (b - b̂) (eq. 16)
-                            phi += mag_weight * mag_weight * (ex * ex + ey * ey + ez * ez)
-                            cx, cy, cz = cross(bx, by, bz, nx, ny, nz)  # R (b × b̂)
-                            # ρ weights the residual only (eqs. 17-18 vs eq. 20)
-                            rx += mag_weight * cx
-                            ry += mag_weight * cy
-                            rz += mag_weight * cz
-                            # Δv_E = ½ M0⁻¹ r (eq. 23 rotated to the earth frame)
-                            vx = half_det_inv * (c00 * rx + c01 * ry + c02 * rz)
-                            vy = half_det_inv * (c01 * rx + c11 * ry + c12 * rz)
-                            vz = half_det_inv * (c02 * rx + c12 * ry + c22 * rz)
-                        else:
-                            flag = ZERO_MAG
+
+@njit(cache=True)
+def cofactors(mx, my, mz, nx, ny, nz):
+    """``M0 = 2 I - m mᵀ - n nᵀ`` by cofactors: (usable, c00, c01, c02, c11, c12, c22,
+    1 / (2 det M0)); not usable (and the scale 1/2) when n is NaN or det <= 1e-12 (a
+    reference along gravity: gravity-only steps)."""
+    a00 = 2.0 - mx * mx - nx * nx
+    a01 = -mx * my - nx * ny
+    a02 = -mx * mz - nx * nz
+    a11 = 2.0 - my * my - ny * ny
+    a12 = -my * mz - ny * nz
+    a22 = 2.0 - mz * mz - nz * nz
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    det = a00 * c00 + a01 * c01 + a02 * c02  # 2 sin² γ
+    usable = not (math.isnan(nx) or math.isnan(ny) or math.isnan(nz))
+    if not det > 1e-12:
+        usable = False
+        det = 1.0
+    return usable, c00, c01, c02, c11, c12, c22, 0.5 / det
+
+
+@njit(cache=True, inline="always")
+def _measure_reference(row, coef, ax, ay, az, bx, by, bz):
+    """Measure the dip at a usable pair (both non-zero, not parallel) and set the sensor's
+    field reference from it (deg and back, as ``frames.mag_reference``); no-op otherwise."""
+    na = math.sqrt(ax * ax + ay * ay + az * az)
+    nb = math.sqrt(bx * bx + by * by + bz * bz)
+    cx, cy, cz = cross(ax, ay, az, bx, by, bz)
+    if not (na > 0.0 and nb > 0.0):
+        return
+    if not math.sqrt(cx * cx + cy * cy + cz * cz) >= PARALLEL_SINE * na * nb:
+        return
+    sine = -(ax * bx + ay * by + az * bz) / (na * nb)
+    dip = math.asin(min(max(sine, -1.0), 1.0))
+    dip = min(max(dip, -DIP_LIMIT_RAD), DIP_LIMIT_RAD)
+    row[B_DIP] = dip
+    rad = dip * (180.0 / math.pi) * (math.pi / 180.0)
+    c, s = math.cos(rad), math.sin(rad)
+    if coef[C_NED] > 0.5:
+        nx, ny, nz = c, 0.0, s
+    else:
+        nx, ny, nz = 0.0, c, -s
+    row[B_REF], row[B_REF + 1], row[B_REF + 2] = nx, ny, nz
+    usable, c00, c01, c02, c11, c12, c22, half = cofactors(
+        coef[C_GRAV], coef[C_GRAV + 1], coef[C_GRAV + 2], nx, ny, nz
+    )
+    row[B_MINV], row[B_MINV + 1], row[B_MINV + 2] = c00, c01, c02
+    row[B_MINV + 3], row[B_MINV + 4], row[B_MINV + 5], row[B_MINV + 6] = c11, c12, c22, half
+    row[B_HAS_REF] = 1.0 if usable else 0.0
+
+
+@njit(cache=True, inline="always")
+def _start(row, coef, first, qw, qx, qy, qz):
+    """(Re)start at q: fresh orientation and correction, the heading awaited from the
+    field; a restart (not ``first``) keeps dip and null and raises the gain."""
+    row[B_Q], row[B_Q + 1], row[B_Q + 2], row[B_Q + 3] = qw, qx, qy, qz
+    row[B_STEP] = row[B_STEP + 1] = row[B_STEP + 2] = 0.0
+    row[B_PHI] = math.nan
+    row[B_SINCE] = -1.0 if first else 0.0
+    row[B_AWAIT] = 1.0
+    row[B_TURN] = coef[C_TURN]
+    if first:
+        row[B_DIP] = math.nan
+        for k in range(3):
+            row[B_REF + k] = math.nan
+        for k in range(7):
+            row[B_MINV + k] = 0.0
+        row[B_HAS_REF] = 0.0
+        rest_null.fresh_one(row, B_NULL)
+
+
+@njit(cache=True, inline="always")
+def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
+    """One screened sample of 000's Fig. 5 (module docstring); returns the flag bits."""
+    qw, qx, qy, qz = row[B_Q], row[B_Q + 1], row[B_Q + 2], row[B_Q + 3]
+    if row[B_TURN] != 0.0:  # the start in the frame of explicit reference vectors
+        row[B_TURN] = 0.0
+        t = C_TURN_ARC if not has_mag or (m0 == 0.0 and m1 == 0.0 and m2 == 0.0) else C_TURN_TRIAD
+        qw, qx, qy, qz = mul(coef[t], coef[t + 1], coef[t + 2], coef[t + 3], qw, qx, qy, qz)
+    # the correction schedule: sensor s's turns are cycles c with (c - phase) % n == 0
+    interval = int(coef[C_INTERVAL])
+    cycle = int(row[B_CYCLE])
+    row[B_CYCLE] = cycle + 1.0
+    phase = int(row[B_INDEX]) % interval if coef[C_ROUND_ROBIN] > 0.5 else 0
+    new = (cycle - phase) % interval == 0
+    use_gyr = coef[C_USE_GYR] > 0.5
+    if use_gyr:  # the gyro null from the still start (000 Appendix B step 1)
+        nx, ny, nz = rest_null.step_one(
+            row, B_NULL, coef, C_NULL, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, dt
+        )
+        g0, g1, g2 = g0 - nx, g1 - ny, g2 - nz
+        x_out[X_NULL], x_out[X_NULL + 1], x_out[X_NULL + 2] = nx, ny, nz
+    mx, my, mz = coef[C_GRAV], coef[C_GRAV + 1], coef[C_GRAV + 2]
+    # the field reference: given, or measured at the sensor's first usable sample
+    fixed = coef[C_FIXED_REF] > 0.5
+    if not fixed and has_mag and math.isnan(row[B_DIP]):
+        _measure_reference(row, coef, a0, a1, a2, m0, m1, m2)
+    ref = coef if fixed else row
+    o = C_REF if fixed else B_REF
+    has_ref = ref[C_HAS_REF if fixed else B_HAS_REF] > 0.5
+    nx, ny, nz = ref[o], ref[o + 1], ref[o + 2]
+    flag = OK
+    if row[B_AWAIT] != 0.0 and has_mag and has_ref:
+        qw, qx, qy, qz, awaiting = _set_heading(
+            qw, qx, qy, qz, m0, m1, m2, mx, my, mz, nx, ny, nz
+        )
+        row[B_AWAIT] = 1.0 if awaiting else 0.0
+    vx, vy, vz = row[B_STEP], row[B_STEP + 1], row[B_STEP + 2]
+    phi = row[B_PHI]
+    if new:
+        # steps 1-6 of 000's Fig. 5, in the earth frame (module docstring)
+        na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        if na > 0.0:
+            hx, hy, hz = _rotate(qw, qx, qy, qz, a0 / na, a1 / na, a2 / na)
+            ex, ey, ez = hx - mx, hy - my, hz - mz  # R (h - ĥ) (eq. 15)
+            phi = ex * ex + ey * ey + ez * ez  # eq. 19, gravity part
+            rx, ry, rz = cross(hx, hy, hz, mx, my, mz)  # R (h × ĥ)
+            vx, vy, vz = 0.5 * rx, 0.5 * ry, 0.5 * rz  # minimum-norm step
+            if has_mag:
+                nb = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+                if nb > 0.0 and not has_ref:
+                    flag = NO_FIELD_REFERENCE
+                elif nb > 0.0:
+                    rho = coef[C_MAG_WEIGHT]
+                    mi = C_MINV if fixed else B_MINV
+                    c00, c01, c02 = ref[mi], ref[mi + 1], ref[mi + 2]
+                    c11, c12, c22, half_det_inv = ref[mi + 3], ref[mi + 4], ref[mi + 5], ref[mi + 6]
+                    bx, by, bz = _rotate(qw, qx, qy, qz, m0 / nb, m1 / nb, m2 / nb)
+                    ex, ey, ez = bx - nx, by - ny, bz - nz  # R (b - b̂) (eq. 16)
+                    phi += rho * rho * (ex * ex + ey * ey + ez * ez)
+                    cx, cy, cz = cross(bx, by, bz, nx, ny, nz)  # R (b × b̂)
+                    # ρ weights the residual only (eqs. 17-18 vs eq. 20)
+                    rx += rho * cx
+                    ry += rho * cy
+                    rz += rho * cz
+                    # Δv_E = ½ M0⁻¹ r (eq. 23 rotated to the earth frame)
+                    vx = half_det_inv * (c00 * rx + c01 * ry + c02 * rz)
+                    vy = half_det_inv * (c01 * rx + c11 * ry + c12 * rz)
+                    vz = half_det_inv * (c02 * rx + c12 * ry + c22 * rz)
                 else:
-                    flag = ZERO_ACC
-                    vx, vy, vz = 0.0, 0.0, 0.0
-                    phi = math.nan
-            h = dt[i]
+                    flag = ZERO_MAG
+        else:
+            flag = ZERO_ACC
+            vx, vy, vz = 0.0, 0.0, 0.0
+            phi = math.nan
+        row[B_STEP], row[B_STEP + 1], row[B_STEP + 2] = vx, vy, vz
+        row[B_PHI] = phi
+    gain = coef[C_GAIN]
+    k = gain
+    since = row[B_SINCE] if coef[C_RESTART_GAIN] > gain else -1.0
+    if since >= 0.0:  # after a restart: the mean of the measurements since (1/t)
+        since += dt
+        k = 1.0 / (since + 1.0 / coef[C_RESTART_GAIN])
+        if k <= gain:
             k = gain
-            if since >= 0.0:  # after a restart: the mean of the measurements since (1/t)
-                since += h
-                k = 1.0 / (since + 1.0 / boost_gain)
-                if k <= gain:
-                    k = gain
-                    since = -1.0
-            # q̇_ε = k (0, Δv_E) ⊗ q̂, which is k q̂ ⊗ (0, Δv_full) = k Δq_full (eqs. 24-25)
-            ew, ex, ey, ez = mul(0.0, vx, vy, vz, qw, qx, qy, qz)
-            dw, dx, dy, dz = k * ew, k * ex, k * ey, k * ez
-            if use_gyr:
-                # q̇ = ½ q̂ ⊗ (0, ω) (eq. 26)
-                gw, gx, gy, gz = mul(qw, qx, qy, qz, 0.0, gyr[s, i, 0], gyr[s, i, 1], gyr[s, i, 2])
-                dw += 0.5 * gw
-                dx += 0.5 * gx
-                dy += 0.5 * gy
-                dz += 0.5 * gz
-            # q̂ + Δt (q̇ + q̇_ε), normalised (eq. 27); dt = 0 leaves q̂ exactly as it is
-            if h != 0.0:
-                qw, qx, qy, qz = _unit_or_previous(
-                    qw + h * dw, qx + h * dx, qy + h * dy, qz + h * dz, qw, qx, qy, qz
-                )
-            quat_out[s, i, 0] = qw
-            quat_out[s, i, 1] = qx
-            quat_out[s, i, 2] = qy
-            quat_out[s, i, 3] = qz
-            phi_out[s, i] = phi
-            two_k = 2.0 * k
-            corr_out[s, i, 0] = two_k * vx
-            corr_out[s, i, 1] = two_k * vy
-            corr_out[s, i, 2] = two_k * vz
-            new_out[s, i] = new
-            flags_out[s, i] = flag
-        quat_state[s, 0], quat_state[s, 1], quat_state[s, 2], quat_state[s, 3] = qw, qx, qy, qz
-        step_state[s, 0], step_state[s, 1], step_state[s, 2] = vx, vy, vz
-        phi_state[s] = phi
-        boost_state[s] = since
-        if awaiting_state[s] and use_mag and has_ref:
-            awaiting_state[s] = awaiting
-    return bad
+            since = -1.0
+    row[B_SINCE] = since
+    # q̇_ε = k (0, Δv_E) ⊗ q̂, which is k q̂ ⊗ (0, Δv_full) = k Δq_full (eqs. 24-25)
+    ew, ex, ey, ez = mul(0.0, vx, vy, vz, qw, qx, qy, qz)
+    dw, dx, dy, dz = k * ew, k * ex, k * ey, k * ez
+    if use_gyr:
+        # q̇ = ½ q̂ ⊗ (0, ω) (eq. 26)
+        gw, gx, gy, gz = mul(qw, qx, qy, qz, 0.0, g0, g1, g2)
+        dw += 0.5 * gw
+        dx += 0.5 * gx
+        dy += 0.5 * gy
+        dz += 0.5 * gz
+    # q̂ + Δt (q̇ + q̇_ε), normalised (eq. 27); dt = 0 leaves q̂ exactly as it is
+    if dt != 0.0:
+        qw, qx, qy, qz = _unit_or_previous(
+            qw + dt * dw, qx + dt * dx, qy + dt * dy, qz + dt * dz, qw, qx, qy, qz
+        )
+    row[B_Q], row[B_Q + 1], row[B_Q + 2], row[B_Q + 3] = qw, qx, qy, qz
+    q_out[0], q_out[1], q_out[2], q_out[3] = qw, qx, qy, qz
+    two_k = 2.0 * k
+    x_out[X_PHI] = phi
+    x_out[X_CORR], x_out[X_CORR + 1], x_out[X_CORR + 2] = two_k * vx, two_k * vy, two_k * vz
+    x_out[X_NEW] = 1.0 if new else 0.0
+    x_out[X_CODE] = flag
+    if flag == ZERO_ACC:
+        return ACC_IGNORED
+    if flag == NO_FIELD_REFERENCE:
+        return MAG_IGNORED
+    return 0  # ZERO_MAG: the screening's MAG_IGNORED or MAG_DISTURBED says why
+
+
+@njit(cache=True, inline="always")
+def _hold(row, coef, x_out):
+    """Outputs of a held sample (a sensor waiting for a usable sample): the held correction
+    (none before the first start), no new one. The sample counts in the schedule."""
+    row[B_CYCLE] += 1.0
+    started = row[contract.K_STARTS] > 0.0
+    two_k = 2.0 * coef[C_GAIN]
+    x_out[X_PHI] = row[B_PHI] if started else math.nan
+    for k in range(3):
+        x_out[X_CORR + k] = two_k * row[B_STEP + k] if started else 0.0
+    x_out[X_NEW] = 0.0
+    x_out[X_CODE] = OK
+    if coef[C_USE_GYR] > 0.5:
+        for k in range(3):
+            x_out[X_NULL + k] = row[B_NULL + rest_null.RN_NULL + k] if started else 0.0
+
+
+@njit(cache=True)
+def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """S sensors' N samples (``contract.run_series``)."""
+    contract.run_series(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
+                        q_out, x_out, flags_out)
+
+
+@njit(cache=True)
+def update(rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """One sample of S sensors (``contract.update_samples``)."""
+    contract.update_samples(_start, _step, _hold, rows, clock, coefs, dt, gyr, acc, mag, has,
+                            q_out, x_out, flags_out)
+
+
+@njit(cache=True)
+def update_one(rows, clock, coefs, dt, g, a, m, has, out):
+    """One sample of one sensor (``contract.update_one``); returns the flags."""
+    return contract.update_one(_start, _step, _hold, rows, clock, coefs, dt, g, a, m, has, out)
+
+
+@njit(cache=True)
+def start(rows, coefs, quat0):
+    """Start S sensors at a given quat0 (S, 4) (``contract.start_rows``): the orientation is
+    given whole, so no heading is awaited and no turn applies."""
+    contract.start_rows(_start, rows, coefs, quat0)
+    for s in range(rows.shape[0]):
+        rows[s, B_AWAIT] = 0.0
+        rows[s, B_TURN] = 0.0

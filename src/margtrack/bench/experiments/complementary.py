@@ -85,7 +85,8 @@ def static_convergence(out_dir: Path, quick: bool) -> ExperimentResult:
         twin.run(rec.slice(0, cut))
         hit.state = twin.state
         state = hit.state
-        state.quat = quat.multiply(state.quat, error)  # rotate the stable estimate by 30 deg
+        offset, _ = Bachmann.state_layout["quat"]  # rotate the stable estimate by 30 deg
+        state.rows[:, offset : offset + 4] = quat.multiply(state.get("quat"), error)
         hit.state = state
         rest = rec.slice(cut, rec.n_samples)
         a, b = hit.run(rest), twin.run(rest)

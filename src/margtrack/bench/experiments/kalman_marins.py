@@ -28,7 +28,7 @@ from margtrack import sim
 from margtrack.bench.experiments import ExperimentResult
 from margtrack.bench.metrics import error_series, summarize
 from margtrack.bench.speed import measure
-from margtrack.filters.ekf import MarinsEkf, MarinsEkfParams, MarinsEkfState, initial_covariance
+from margtrack.filters.ekf import MarinsEkf, MarinsEkfParams
 
 __all__ = ["EXPERIMENTS", "approach_cost", "convergence", "convergence_run"]
 
@@ -54,12 +54,12 @@ def convergence_run(
     rec = sim.simulate(sim.static(duration_s, rate_hz, q0=q_true), frame=frame, seed=0)
     p = dataclasses.replace(params or MarinsEkfParams(), frame=frame)
     est = MarinsEkf(p)
-    est.state = MarinsEkfState(
-        quat=INITIAL_STATE[None, 3:].copy(),
-        gyr_est_rad_s=INITIAL_STATE[None, :3].copy(),
-        cov=initial_covariance(1, p.init_rate_std_rad_s, p.init_quat_std),
-        dip_rad=np.full(1, np.nan),
-    )
+    est.reset(INITIAL_STATE[3:])  # the initial covariance (init_*), then the state as 001's
+    state = est.state
+    for name, value in (("quat", INITIAL_STATE[3:]), ("gyr_est_rad_s", INITIAL_STATE[:3])):
+        offset, width = MarinsEkf.state_layout[name]
+        state.rows[:, offset : offset + width] = value
+    est.state = state
     out = est.run(rec)
     state = np.concatenate([out.outputs["gyr_est_rad_s"], out.quat], axis=1)
     state[0] = INITIAL_STATE  # the first sample (dt = 0) outputs the initial state
