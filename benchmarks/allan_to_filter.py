@@ -16,8 +16,6 @@ from __future__ import annotations
 import argparse
 import math
 
-import numpy as np
-
 from margtrack import methods, sim
 from margtrack.bench.metrics import error_series, summarize
 from margtrack.calibration import Calibration, allan_deviation, identify_noise
@@ -74,8 +72,8 @@ def main() -> None:
     motion = sim.random_motion(300.0, RATE_HZ, 7, max_rate_deg_s=200.0, bandwidth_hz=2.0,
                                translation_m=0.02)
     rec = sim.simulate(motion, seed=7, **sensor())
-    print(f"\n| method | parameters from the file | defaults: total / heading / incl. | "
-          f"file: total / heading / incl. |\n|---|---|---|---|")
+    print("\n| method | parameters from the file | defaults: total / heading / incl. | "
+          "file: total / heading / incl. |\n|---|---|---|---|")
     for name in calibrated_methods():
         values = cal.parameter_values(methods.get(name).params_type)
         row = []

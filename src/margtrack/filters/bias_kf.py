@@ -166,13 +166,19 @@ class BiasKalmanParams(Params):
     gyr_noise_rad_s_sqrt_hz: Density = param(
         3e-4, unit="rad/s/√Hz", gt=0,
         help="white noise density of the rate input (one value or one per body axis)",
+        calibrated_by="noise.gyr_noise_density_rad_s_sqrt_hz",
     )
     gyr_bias_walk_rad_s_sqrt_s: Density = param(
         1e-7, unit="rad/s/√s", ge=0,
         help="random-walk density of the rate bias (one value or one per body axis)",
+        calibrated_by="noise.gyr_bias_walk_rad_s2_sqrt_hz",
     )
     acc_noise_m_s2_sqrt_hz: float = param(
-        0.0015, unit="m/s²/√Hz", gt=0, help="white noise density of the gravity estimate"
+        0.0015,
+        unit="m/s²/√Hz",
+        gt=0,
+        help="white noise density of the gravity estimate",
+        calibrated_by="noise.acc_noise_density_m_s2_sqrt_hz",
     )
     acc_motion_fraction: float = param(
         0.02, ge=0, le=1, help="body acceleration as white noise, fraction of g (003: 0.01)"

@@ -132,13 +132,16 @@ def screen_one(coef, sc, step, time_flags, g0, g1, g2, a0, a1, a2, m0, m1, m2, h
     skip = (f & CLOCK) != 0 and (f & GAP) == 0
     # -- gyroscope: a bad rate is replaced by the last good one ------------------------
     g_range = coef[C_GYR_RANGE] * (1.0 - 1e-9)
-    if not _finite3(g0, g1, g2):
+    if not has_gyr:
+        g0 = g1 = g2 = 0.0  # a method that reads no gyroscope: nothing to screen
+    elif not _finite3(g0, g1, g2):
         f |= INVALID | GYR_CLIPPED
     elif abs(g0) >= g_range or abs(g1) >= g_range or abs(g2) >= g_range:
         f |= GYR_CLIPPED
     else:
         sc[S_LAST_GYR], sc[S_LAST_GYR + 1], sc[S_LAST_GYR + 2] = g0, g1, g2
-    g0, g1, g2 = sc[S_LAST_GYR], sc[S_LAST_GYR + 1], sc[S_LAST_GYR + 2]
+    if has_gyr:
+        g0, g1, g2 = sc[S_LAST_GYR], sc[S_LAST_GYR + 1], sc[S_LAST_GYR + 2]
     # -- accelerometer: a bad sample becomes the zero sentinel --------------------------
     a_range = coef[C_ACC_RANGE] * (1.0 - 1e-9)
     acc_ok = True
