@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from margtrack.estimator.params import specs
 from margtrack.filters.complementary import BachmannParams
 from margtrack.live.simulator import PeopleSimulation, SimulatorSource
 
@@ -84,7 +85,10 @@ def test_live_view_connects_renders_the_avatar_and_retunes_the_filter(tmp_path):
             assert pixels.std() > 0.05, "blank page"
             assert blue > 200 and red > 200, f"avatar not drawn: {blue} blue, {red} red pixels"
 
-            gain = page.get_by_label("gain", exact=True)
+            # the control is labelled by the parameter's declaration: name and unit
+            label = next(p.label for p in specs(BachmannParams) if p.name == "gain")
+            assert label.startswith("gain [")
+            gain = page.get_by_label(label, exact=True)
             assert float(gain.input_value()) == pytest.approx(BachmannParams().gain)
             gain.fill("0.5")
             gain.press("Enter")
