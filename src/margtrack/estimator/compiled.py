@@ -109,6 +109,8 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         super().__init__(params, rate_hz=rate_hz, **param_values)
         self._buffers: tuple[Array, Array, NDArray[np.uint16]] | None = None
         self._has_gyr_bit = 2 if self.uses_gyr else 0
+        self._update_one = self.kernel.update_one
+        self._flag_one: int | None = None
         self._derive()
 
     # -- coefficients, computed once per parameter change -----------------------------------
@@ -126,12 +128,19 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         self._dt_default = None if self.rate_hz is None else 1.0 / self.rate_hz
         width = sum(w for _, w in self.outputs_layout)
         self._out_one = np.zeros(4 + max(width, 1))
-        self._flags_one = np.zeros(1, dtype=np.uint16)
+        self._q_one = self._out_one[:4]  # a view: the lean path copies it out
 
     @Estimator.params.setter  # type: ignore[attr-defined]
     def params(self, value: P) -> None:
         Estimator.params.fset(self, value)  # type: ignore[attr-defined]
         self._derive()
+
+    @property
+    def flags(self) -> NDArray[np.uint16] | None:
+        """(S,) health flags of the last processed sample (:class:`Flag` bits)."""
+        if self._last_flags is None and self._flag_one is not None:
+            return np.array([self._flag_one], dtype=np.uint16)
+        return None if self._last_flags is None else self._last_flags.copy()
 
     # -- state ----------------------------------------------------------------------------
     def _new_rows(self, n_sensors: int) -> CompiledState:
@@ -152,6 +161,7 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         """Forget the state; with ``q0`` ((4,) or (S, 4)) start from that orientation."""
         self._probe = UnitProbe()
         self._last_flags = None
+        self._flag_one = None
         self._buffers = None
         if q0 is None:
             self._state = None
@@ -185,12 +195,11 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
                     if dt is None:
                         raise ValueError("update() needs dt (s) or an estimator built with rate_hz")
                 has = (mag is not None) | (self._has_gyr_bit if gyr is not None else 0)
-                out = self._out_one
-                self._flags_one[0] = self.kernel.update_one(
-                    state.rows, state.clock, self._coefs, dt, g, a, m, has, out
+                self._flag_one = self._update_one(
+                    state.rows, state.clock, self._coefs, dt, g, a, m, has, self._out_one
                 )
-                self._last_flags = self._flags_one
-                return out[:4].copy()
+                self._last_flags = None
+                return self._q_one.copy()
         return self._update_general(gyr, a, mag, dt)
 
     def _update_general(
@@ -238,6 +247,7 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
             state.rows, state.clock, self._coefs, float(dt), g, a, m, has, q_out, x_out, flags
         )
         self._last_flags = flags
+        self._flag_one = None
         return q_out[0].copy() if one else q_out.copy()
 
     def _run_arrays(
@@ -277,6 +287,7 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
                 raise ValueError(f"{problem} (strict=True; strict=False flags and skips it)")
         self._state = work
         self._last_flags = flags[:, -1].copy()
+        self._flag_one = None
         outputs: dict[str, NDArray[Any]] = {}
         offset = 0
         for name, w in self.outputs_layout:
