@@ -33,7 +33,7 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
 
 @njit(cache=True, inline="always")
 def _hold(row, coef, x_out):
-    pass
+    """Nothing to write: plain integration has no extra outputs."""
 
 
 @njit(cache=True)
