@@ -26,7 +26,7 @@ from margtrack.estimator import screening
 from margtrack.estimator.contract import Estimate, Estimator
 from margtrack.estimator.flags import first_problem
 from margtrack.estimator.params import Params
-from margtrack.estimator.units import UnitProbe, check_series_units
+from margtrack.estimator.units import UnitProbe
 from margtrack.kernels import contract as kc
 
 Array = NDArray[np.float64]
@@ -259,10 +259,7 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         *,
         check_units: bool,
     ) -> Estimate:
-        x = self._validated(gyr, acc, mag, t)
-        if check_units:
-            for s in range(x.acc.shape[0]):
-                check_series_units(None if x.gyr is None else x.gyr[s], x.acc[s], path="arrays")
+        x = self._validated(gyr, acc, mag, t, check_units=check_units)
         n_sensors, n = x.acc.shape[0], x.acc.shape[1]
         state = self._state
         if state is not None and state.rows.shape[0] != n_sensors:

@@ -472,8 +472,15 @@ class Estimator(ABC, Generic[P, S]):
         return start + np.arange(n) / rate
 
     def _validated(
-        self, gyr: ArrayLike | None, acc: ArrayLike, mag: ArrayLike | None, t: Array
+        self,
+        gyr: ArrayLike | None,
+        acc: ArrayLike,
+        mag: ArrayLike | None,
+        t: Array,
+        *,
+        check_units: bool = False,
     ) -> _Inputs:
+        """Shapes checked, arrays (S, N, 3); with ``check_units`` also deg/s and g refused."""
         acc_a = _signal(acc, "acc")
         n = acc_a.shape[1]
         if n == 0:
@@ -493,6 +500,9 @@ class Estimator(ABC, Generic[P, S]):
             )
         if t.shape != (n,):
             raise ValueError(f"t must have shape ({n},), got {t.shape}")
+        if check_units:
+            for s in range(acc_a.shape[0]):
+                check_series_units(None if gyr_a is None else gyr_a[s], acc_a[s], path="arrays")
         return _Inputs(t=t, gyr=gyr_a, acc=acc_a, mag=mag_a)
 
     def _fresh_state(self, n_sensors: int) -> S:
@@ -510,10 +520,7 @@ class Estimator(ABC, Generic[P, S]):
         *,
         check_units: bool,
     ) -> Estimate:
-        x = self._validated(gyr, acc, mag, t)
-        if check_units:
-            for s in range(x.acc.shape[0]):
-                check_series_units(None if x.gyr is None else x.gyr[s], x.acc[s], path="arrays")
+        x = self._validated(gyr, acc, mag, t, check_units=check_units)
         n_sensors = x.acc.shape[0]
         state = self._state
         if state is not None and state.quat.shape[0] != n_sensors:

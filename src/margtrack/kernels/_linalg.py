@@ -28,14 +28,10 @@ def cholesky(s, m, chol):
     return True
 
 
-@njit(cache=True)
-def add_kalman_gain(chol, m, rhs, innov, x, y, gain):
-    """Kalman gain ``K = rhsᵀ S⁻¹`` with ``S = chol cholᵀ`` into ``gain`` (n, m); ``x += K ν``.
-
-    ``rhs`` (m, n) is ``H P``; ``y`` (m, n) a buffer. Two triangular solves per column of
-    ``rhs`` replace the inverse of ``S``.
-    """
-    n = x.shape[0]
+@njit(cache=True, inline="always")
+def add_kalman_gain_n(chol, m, n, rhs, innov, x, y, gain):
+    """:func:`add_kalman_gain` with the state size ``n`` given (inlined, so a caller's
+    literal ``m`` and ``n`` unroll)."""
     for c in range(n):  # Y = S⁻¹ rhs
         for r in range(m):
             acc = rhs[r, c]
@@ -53,3 +49,13 @@ def add_kalman_gain(chol, m, rhs, innov, x, y, gain):
             gain[i, k] = y[k, i]
             acc += y[k, i] * innov[k]
         x[i] += acc
+
+
+@njit(cache=True)
+def add_kalman_gain(chol, m, rhs, innov, x, y, gain):
+    """Kalman gain ``K = rhsᵀ S⁻¹`` with ``S = chol cholᵀ`` into ``gain`` (n, m); ``x += K ν``.
+
+    ``rhs`` (m, n) is ``H P``; ``y`` (m, n) a buffer. Two triangular solves per column of
+    ``rhs`` replace the inverse of ``S``.
+    """
+    add_kalman_gain_n(chol, m, x.shape[0], rhs, innov, x, y, gain)

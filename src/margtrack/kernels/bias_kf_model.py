@@ -30,7 +30,7 @@ import math
 
 from numba import njit
 
-from margtrack.kernels._linalg import add_kalman_gain, cholesky
+from margtrack.kernels._linalg import add_kalman_gain, add_kalman_gain_n, cholesky
 from margtrack.kernels._quat import cross, mul, normalized
 from margtrack.kernels.triad import (
     OK,
@@ -279,29 +279,6 @@ def _cholesky(s, m, chol):
     return True
 
 
-@njit(cache=True, inline="always")
-def _add_kalman_gain(chol, m, n, rhs, innov, x, y, gain):
-    """``kernels._linalg.add_kalman_gain`` (the same operations) with the size ``n`` given,
-    inlined so literal ``m`` and ``n`` unroll."""
-    for c in range(n):  # Y = S⁻¹ rhs
-        for r in range(m):
-            acc = rhs[r, c]
-            for k in range(r):
-                acc -= chol[r, k] * y[k, c]
-            y[r, c] = acc / chol[r, r]
-        for r in range(m - 1, -1, -1):
-            acc = y[r, c]
-            for k in range(r + 1, m):
-                acc -= chol[k, r] * y[k, c]
-            y[r, c] = acc / chol[r, r]
-    for i in range(n):
-        acc = 0.0
-        for k in range(m):
-            gain[i, k] = y[k, i]
-            acc += y[k, i] * innov[k]
-        x[i] += acc
-
-
 @njit(cache=True)
 def _predict_covariance(p, g, gp):
     """``P ← Φ P Φᵀ`` in place for ``Φ = [[G], [0, I]]``, ``G = [Φ_Q, Φ_B]`` (m, n) (eq. 48).
@@ -347,7 +324,7 @@ def _kalman_update(p, v, innov, chol, y, gain, zmat, kv, dx):
         return False
     for r in range(n):
         dx[r] = 0.0
-    _add_kalman_gain(chol, m, n, p, innov, dx, y, gain)  # K = P Hᵀ S⁻¹ (eq. 49), dx = K ν (eq. 50)
+    add_kalman_gain_n(chol, m, n, p, innov, dx, y, gain)  # K = P Hᵀ S⁻¹ (eq. 49), dx = K ν (eq. 50)
     for r in range(n):  # Z = (I - KH) P, KV
         for c in range(n):
             acc = p[r, c]
