@@ -45,6 +45,13 @@ def test_gauss_newton_converges_within_four_iterations_and_one_suffices_when_tra
     assert f["gauss-newton fraction_converged"] == 1.0
     assert f["gauss-newton fraction_within_4_iterations"] >= 0.95
     assert sum(f["gauss-newton iterations_histogram"].values()) == f["cases"]
+    # 001's "3 or 4 steps" holds for guesses around the truth, for both methods
+    for label in ("gauss-newton", "newton"):
+        for low_high in ("0_30", "30_60"):
+            assert f[f"{label} within_4_iterations_guess_{low_high}_deg"] >= 0.99
+    # far off, Newton's indefinite Hessian costs it steps that Gauss-Newton does not need
+    assert f["newton within_4_iterations_guess_60_90_deg"] < 0.5
+    assert f["gauss-newton within_4_iterations_guess_60_90_deg"] > 0.8
     assert f["tracking one_iteration_vs_converged_rms_deg"] < (
         0.25 * f["tracking converged_vs_truth_rms_deg"])
 
