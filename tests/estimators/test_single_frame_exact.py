@@ -102,13 +102,32 @@ def test_triad_and_fqa_equal_scipy_with_gravity_weighted_infinitely(cls):
     assert np.max(quat.angle_between(est.quat, expected)) < 1e-9
 
 
+@pytest.mark.parametrize("eigenvalue", ["closed-form", "newton"])
 @pytest.mark.parametrize("weights", [(1.0, 1.0), (1.0, 0.1), (5.0, 2.0)])
-def test_quest_equals_davenport_with_noise_including_half_turns(weights):
+def test_quest_equals_davenport_with_noise_including_half_turns(weights, eigenvalue):
+    # the paper's QUEST finds λ_max by Newton-Raphson on the characteristic equation;
+    # both ways give Davenport's eigenvector
     q_true = _hard_orientations(300, seed=6)
     acc, mag = _noisy(q_true, "ENU", seed=7)
-    quest = Quest(mag_dip_ref_deg=DIP, weights=weights).run(acc=acc, mag=mag, rate_hz=1.0)
+    quest = Quest(mag_dip_ref_deg=DIP, weights=weights, eigenvalue=eigenvalue).run(
+        acc=acc, mag=mag, rate_hz=1.0)
     dav = Davenport(mag_dip_ref_deg=DIP, weights=weights).run(acc=acc, mag=mag, rate_hz=1.0)
     assert np.max(quat.angle_between(quest.quat, dav.quat)) < 1e-9
+
+
+def test_newton_eigenvalue_reaches_the_closed_form_lambda():
+    # λ_max² = a1² + a2² + 2 a1 a2 cos(θ_r - θ_b) for two observations (Shuster & Oh)
+    from margtrack.kernels.quest import newton_eigenvalue
+
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        a1, a2 = rng.uniform(0.1, 5.0, 2)
+        r1, r2, b1, b2 = (v / np.linalg.norm(v) for v in rng.normal(size=(4, 3)))
+        b = a1 * np.outer(r1, b1) + a2 * np.outer(r2, b2)
+        lam, _ = newton_eigenvalue(a1 + a2, *b.ravel())
+        cos_diff = r1 @ r2 * (b1 @ b2) + np.linalg.norm(np.cross(r1, r2)) * np.linalg.norm(
+            np.cross(b1, b2))
+        assert lam == pytest.approx(np.sqrt(a1**2 + a2**2 + 2 * a1 * a2 * cos_diff), rel=1e-12)
 
 
 def test_quest_turns_the_reference_frame_exactly_near_half_turns():

@@ -62,4 +62,8 @@ def test_speed_experiment_reports_rates_and_ratios(tmp_path):
     assert {"triad", "fqa", "quest", "davenport", "gauss-newton", "newton"} <= {
         k.split(" ")[0] for k in rates}
     assert all(v > 0 for v in rates.values())
+    # both of 002's comparisons are reported: against the closed form and the paper's QUEST
+    for key in ("fqa / quest, kernels alone", "fqa / quest-newton, kernels alone",
+                "fqa / quest-newton (002: 1.25 in MATLAB)"):
+        assert result.figures[key] > 0
     assert result.plots[0].is_file()

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from margtrack.estimator.params import param
 from margtrack.estimators.davenport import WahbaParams
 from margtrack.estimators.prefilter import MeasuredDipState, SingleFrameEstimator
 from margtrack.kernels.quest import quest_run
@@ -31,7 +32,14 @@ __all__ = ["Quest", "QuestParams"]
 class QuestParams(WahbaParams):
     """QUEST's parameters: ``weights`` (a_gravity, a_field) and the reference dip
     ``mag_dip_ref_deg`` (see :class:`~margtrack.estimators.davenport.WahbaParams`), the
-    output ``frame`` and the low-pass prefilter."""
+    output ``frame``, the low-pass prefilter and how λ_max is found."""
+
+    eigenvalue: str = param(
+        "closed-form",
+        choices=("closed-form", "newton"),
+        help="largest eigenvalue of K: exact for two vectors, or Newton-Raphson on the "
+        "characteristic equation as in Shuster & Oh's QUEST (002's timing)",
+    )
 
 
 class Quest(SingleFrameEstimator[QuestParams, MeasuredDipState]):
@@ -68,7 +76,7 @@ class Quest(SingleFrameEstimator[QuestParams, MeasuredDipState]):
         rotation = np.empty(shape, dtype=np.int8)
         quest_run(
             acc, mag, dt, up, north, self._dip_rad(), p.weights[0], p.weights[1],
-            acc_cut, mag_cut, order,
+            p.eigenvalue == "newton", acc_cut, mag_cut, order,
             state.quat, state.dip_rad, state.lowpass_history, state.lowpass_ready,
             out, flags, rotation,
         )
