@@ -36,6 +36,7 @@ _MODULES: tuple[str, ...] = (
     "kalman_ang",
     "kalman_marins",
     "single_frame",
+    "tilt_table",
 )
 
 
