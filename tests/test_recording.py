@@ -29,7 +29,8 @@ def _arrays(n: int = N) -> dict[str, np.ndarray]:
 # --- validation: finiteness -----------------------------------------------------------
 
 
-@pytest.mark.parametrize(("field", "row"), [("gyr", 3), ("acc", 0), ("mag", 9), ("quat_true", 4)])
+# quat_true may have NaN holes (issue 18; tests/io/test_io_columns.py), inf is refused there
+@pytest.mark.parametrize(("field", "row"), [("gyr", 3), ("acc", 0), ("mag", 9)])
 def test_nan_names_field_and_sample(field: str, row: int) -> None:
     fields = _arrays()
     fields[field][row, 1] = np.nan

@@ -28,7 +28,8 @@ __all__ = ["Recording", "Saturation", "find_saturation", "resample"]
 
 
 def _array(
-    value: ArrayLike, name: str, width: int | None, n: int | None = None, n_name: str = "t"
+    value: ArrayLike, name: str, width: int | None, n: int | None = None, n_name: str = "t",
+    nan_rows: bool = False,
 ) -> Array:
     try:
         arr = np.array(value, dtype=np.float64)  # a copy: the caller keeps its own array
@@ -43,9 +44,14 @@ def _array(
         )
     if n is not None and arr.shape[0] != n:
         raise ValueError(f"{name} has {arr.shape[0]} samples but {n_name} has {n}")
-    bad = ~np.isfinite(arr)
+    bad = np.isinf(arr) if nan_rows else ~np.isfinite(arr)
     if bad.any():
         row = int(np.argwhere(bad)[0][0])
+        if nan_rows:
+            raise ValueError(
+                f"{name} has an infinite value at sample {row}: {arr[row]}; mark a sample "
+                "without truth with NaN"
+            )
         raise ValueError(
             f"{name} has a non-finite value (NaN or inf) at sample {row}: {arr[row]}; "
             "remove or interpolate the gap before building the Recording"
@@ -127,7 +133,9 @@ class Recording:
     gyr : (N, 3) body angular rate, rad/s.
     acc : (N, 3) body specific force, m/s² (at rest it points up).
     mag : (N, 3) body magnetic field (µT preferred) or None.
-    quat_true : (N, 4) true orientation ``[w, x, y, z]`` of the body in ``frame`` or None.
+    quat_true : (N, 4) true orientation ``[w, x, y, z]`` of the body in ``frame`` or None;
+        rows with a NaN are holes in the truth (stored as all-NaN rows, skipped by the
+        metrics, counted by :attr:`truth_valid`).
     movement : (N,) bool mask of samples that count for error metrics, or None (all count).
     frame : earth frame of ``quat_true`` ("NED" or "ENU").
     name : a label (trial or sensor name).
@@ -159,9 +167,12 @@ class Recording:
         if self.mag is not None:
             set_(self, "mag", _array(self.mag, "mag", 3, n))
         if self.quat_true is not None:
-            q = _array(self.quat_true, "quat_true", 4, n)
+            # truth may have holes (an optical system losing the markers): a row with a NaN
+            # is all NaN, and the metrics skip it
+            q = _array(self.quat_true, "quat_true", 4, n, nan_rows=True)
+            q[np.isnan(q).any(axis=1)] = np.nan
             norms = np.linalg.norm(q, axis=1)
-            bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
+            bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)  # NaN rows compare False
             if bad.size:
                 raise ValueError(
                     f"quat_true is not a unit quaternion at sample {int(bad[0])} "
@@ -169,7 +180,7 @@ class Recording:
                 )
             # rescale only rows that need it, so building a Recording from a Recording's
             # arrays (readers, slice) reproduces them bit for bit
-            off = np.abs(norms - 1.0) > 1e-12
+            off = np.abs(norms - 1.0) > 1e-12  # False on NaN rows
             q[off] /= norms[off, None]
             set_(self, "quat_true", q)
         if self.movement is not None:
@@ -228,6 +239,13 @@ class Recording:
         if check_units:
             check_unit_magnitudes(gyr_arr, acc_arr, fix=unit_fix_keyword("from_arrays"))
         return cls(t=t, gyr=gyr_arr, acc=acc_arr, mag=mag, **fields)
+
+    @property
+    def truth_valid(self) -> NDArray[np.bool_] | None:
+        """(N,) True where ``quat_true`` is known (not a hole); None without truth."""
+        if self.quat_true is None:
+            return None
+        return ~np.isnan(self.quat_true).any(axis=1)
 
     @property
     def n_samples(self) -> int:
@@ -348,8 +366,21 @@ class Recording:
 def resample(t_src: ArrayLike, values: ArrayLike, t_dst: ArrayLike) -> Array:
     """Linear interpolation of a slower sensor's samples onto other timestamps (004, Overview).
 
-    ``t_src`` (M,) strictly increasing s, ``values`` (M, K), ``t_dst`` (N,) s. Outside the
-    span of ``t_src`` the nearest sample is held (no extrapolation).
+    The way to put sensors logged at different rates on common timestamps, the gyroscope's
+    (``margtrack.io.read`` does it for a folder of per-sensor files)::
+
+        acc_on_gyr = margtrack.resample(t_acc_s, acc_m_s2, t_gyr_s)   # (N, 3)
+
+    Parameters
+    ----------
+    t_src : (M,) the source timestamps, s, strictly increasing.
+    values : (M, K) or (M,) the source samples, any unit (kept); finite.
+    t_dst : (N,) the timestamps to interpolate at, s.
+
+    Returns
+    -------
+    (N, K) float64: linear interpolation between the two source samples around each
+    ``t_dst``; outside the span of ``t_src`` the nearest sample is held (no extrapolation).
     """
     ts = _array(t_src, "t_src", None)
     _check_timestamps(ts)

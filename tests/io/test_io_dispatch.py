@@ -88,16 +88,18 @@ def test_folder_with_inertial_csv_is_read_as_xio(tmp_path: Path) -> None:
 def test_foreign_csv_needs_a_mapping(tmp_path: Path) -> None:
     p = tmp_path / "log.csv"
     p.write_text("gx,gy,gz,ax,ay,az\n0,0,0,0,0,9.8\n0,0,0,0,0,9.8\n")
-    with pytest.raises(ValueError, match=r"log\.csv is not a margtrack CSV; read it with read_csv"):
+    # the columns and the flags that map them (issue 18: no Python-only hint, no stray brace)
+    with pytest.raises(ValueError, match=r"log\.csv is not a margtrack CSV; the file has columns "
+                       r"\['gx', .*--column gyr=gx,gy,gz --column acc=ax,ay,az"):
         read(p)
     rec = read(p, columns={"gyr": ["gx", "gy", "gz"], "acc": ["ax", "ay", "az"]}, rate_hz=10.0)
     np.testing.assert_array_equal(rec.t, [0.0, 0.1])
 
 
 def test_unsupported_and_missing_paths(tmp_path: Path) -> None:
-    (tmp_path / "r.txt").write_text("x")
-    with pytest.raises(ValueError, match=r"unsupported extension '\.txt'; supported: \.h5, \.hdf5"):
-        read(tmp_path / "r.txt")
+    (tmp_path / "r.dat").write_text("x")  # .txt is a table now (issue 18)
+    with pytest.raises(ValueError, match=r"unsupported extension '\.dat'; supported: \.h5, \.hdf5"):
+        read(tmp_path / "r.dat")
     with pytest.raises(ValueError, match=r"extension '\.mat'; use one of \.h5, \.hdf5, \.csv"):
         write(_recording(), tmp_path / "r.mat")
     assert not (tmp_path / "r.mat").exists()

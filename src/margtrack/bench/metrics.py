@@ -9,6 +9,10 @@ vertical in both NED and ENU):
 
 computed here in the equivalent ``atan2`` forms, which keep full precision for small
 errors where ``acos`` near 1 loses half the digits.
+
+Truth holes (NaN rows of ``quat_true``, where an optical system lost the markers) give NaN
+errors, and :func:`rmse_deg` / :func:`summarize` skip them: an RMSE is over the samples that
+are both counted (the mask) and known.
 """
 
 from __future__ import annotations
@@ -58,7 +62,8 @@ def error_series(
     """Total, heading and inclination error (N,) rad of an estimate against the truth.
 
     Both (N, 4) [w, x, y, z], body to their earth frame; the estimate is converted to the
-    truth's frame first. ``q`` and ``-q`` give the same errors.
+    truth's frame first. ``q`` and ``-q`` give the same errors. A truth row with a NaN (a
+    hole) gives NaN errors at that sample.
     """
     est = frames.convert(quat_est, est_frame, true_frame)
     e = quat.multiply(est, quat.conjugate(np.asarray(quat_true, dtype=np.float64)))
@@ -72,19 +77,29 @@ def error_series(
 def rmse_deg(error_rad: ArrayLike, mask: ArrayLike | None = None) -> float:
     """Root mean square of ``error_rad`` over ``mask`` (all samples if None), in degrees.
 
-    Raises ``ValueError`` if the mask selects no sample.
+    NaN errors (truth holes) are skipped. Raises ``ValueError`` if no sample is left.
     """
     err = np.asarray(error_rad, dtype=np.float64)
     if mask is not None:
         err = err[np.asarray(mask, dtype=bool)]
     if err.size == 0:
         raise ValueError("no sample to evaluate: the mask selects none")
+    err = err[~np.isnan(err)]
+    if err.size == 0:
+        raise ValueError("no sample to evaluate: the truth is missing (NaN) on every one")
     return float(np.degrees(np.sqrt(np.mean(err * err))))
 
 
 def summarize(series: ErrorSeries, mask: ArrayLike | None = None) -> ErrorSummary:
-    """RMSE in degrees of each error over ``mask`` (the BROAD ``movement`` samples)."""
-    n = int(np.count_nonzero(mask)) if mask is not None else int(series.total_rad.shape[0])
+    """RMSE in degrees of each error over ``mask`` (the BROAD ``movement`` samples).
+
+    Samples whose truth is a hole (NaN error) are skipped; ``n_samples`` counts the samples
+    used: in the mask and with truth.
+    """
+    known = ~np.isnan(series.total_rad)
+    if mask is not None:
+        known &= np.asarray(mask, dtype=bool)
+    n = int(np.count_nonzero(known))
     return ErrorSummary(
         total_rmse_deg=rmse_deg(series.total_rad, mask),
         heading_rmse_deg=rmse_deg(series.heading_rad, mask),

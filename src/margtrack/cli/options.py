@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
@@ -62,12 +65,97 @@ TimeUnitOption = Annotated[
 ]
 
 
+ColumnOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--column",
+        help="Map a CSV/TSV column to a signal, KEY=NAME[,NAME,NAME]; keys t, gyr, acc, mag "
+        "(3 names, x y z), quat_true (4, w x y z); repeatable, e.g. --column t=time_ms "
+        "--column gyr=gx,gy,gz --column acc=ax,ay,az. Delimiter (, ; tab space) and decimal "
+        "comma are detected.",
+    ),
+]
+ProfileOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--profile",
+        help="Import profile (TOML): columns, units, delimiter, decimal of a logger, so its "
+        "flags are written once; flags given here win over it.",
+    ),
+]
+
+
 def units(
     gyr_unit: str | None, acc_unit: str | None, mag_unit: str | None, time_unit: str | None
 ) -> dict[str, str | None]:
     """The unit options as keyword arguments of ``io.read`` / ``io.read_any``."""
     return {"gyr_unit": gyr_unit, "acc_unit": acc_unit, "mag_unit": mag_unit,
             "time_unit": time_unit}
+
+
+def parse_columns(items: list[str] | tuple[str, ...]) -> dict[str, list[str]]:
+    """``--column KEY=NAME[,NAME...]`` items as a column map; errors say which item and why."""
+    from margtrack.io.csv_layout import FIELD_WIDTHS, normalise_columns
+
+    out: dict[str, list[str]] = {}
+    for item in items:
+        key, sep, names = item.partition("=")
+        key = key.strip()
+        if not sep or not key or not names.strip():
+            raise ValueError(
+                f"--column {item!r} is not KEY=NAME[,NAME,NAME]; e.g. --column gyr=gx,gy,gz"
+            )
+        if key not in FIELD_WIDTHS:
+            raise ValueError(
+                f"--column {item!r}: unknown key {key!r}; the keys are t, gyr, acc, mag, "
+                "quat_true (and movement)"
+            )
+        if key in out:
+            raise ValueError(
+                f"--column {key}= is given twice ({','.join(out[key])} and {names}); give "
+                "each key once"
+            )
+        try:
+            out.update(normalise_columns({key: names}))
+        except ValueError as exc:
+            raise ValueError(f"--column {item!r}: {exc}") from None
+    return out
+
+
+def read_options(
+    gyr_unit: str | None = None,
+    acc_unit: str | None = None,
+    mag_unit: str | None = None,
+    time_unit: str | None = None,
+    column: list[str] | None = None,
+    profile: Path | None = None,
+) -> dict[str, object]:
+    """The input options of a command as keyword arguments of ``io.read`` / ``io.read_any``.
+
+    The units always; ``columns`` and ``profile`` only when given (readers of formats
+    that take no column map see no such keyword).
+    """
+    out: dict[str, object] = dict(units(gyr_unit, acc_unit, mag_unit, time_unit))
+    if column:
+        out["columns"] = parse_columns(column)
+    if profile is not None:
+        out["profile"] = profile
+    return out
+
+
+@contextmanager
+def reader_warnings() -> Iterator[None]:
+    """Within the block, Python warnings (a reader leaving out a truncated line, holding an
+    empty cell) print as one-line CLI warnings instead of a file:line Python warning."""
+    from margtrack.cli.app import warn
+
+    def show(message: object, *args: object, **kwargs: object) -> None:
+        warn(str(message))
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", UserWarning)
+        warnings.showwarning = show  # type: ignore[assignment]
+        yield
 
 
 def cli_unit_fix(signal: str, suspected: str) -> str:
@@ -84,9 +172,11 @@ def check_units(rec: Recording, source: object) -> Recording:
     return rec
 
 
-def read_checked(path: Path, units: dict[str, str | None]) -> list[Recording]:
-    """Every recording at ``path`` (``io.read_any``) in the declared units, magnitudes checked."""
+def read_checked(path: Path, units: dict[str, object]) -> list[Recording]:
+    """Every recording at ``path`` (``io.read_any``) read with the input options
+    (:func:`read_options`: units, columns, profile), magnitudes checked."""
     from margtrack import io
 
-    recs = io.read_any(path, **units)
+    with reader_warnings():
+        recs = io.read_any(path, **units)  # type: ignore[arg-type]
     return [check_units(r, path if len(recs) == 1 else f"{path} [{r.name}]") for r in recs]

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import re
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,13 +25,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from margtrack.frames import check_frame
 from margtrack.io.hdf5 import _existing_file, _naming_path, _writable, meta_to_json
+from margtrack.io.safe_output import atomic_output
 from margtrack.recording import Recording
-from margtrack.units import (
-    check_unit_magnitudes,
-    convert_unit,
-    unit_factor,
-    unit_fix_keyword,
-)
+from margtrack.units import unit_factor
 
 __all__ = ["read_csv", "write_csv", "write_estimate_csv"]
 
@@ -138,10 +134,16 @@ def write_csv(rec: Recording, path: str | Path) -> None:
         f"# meta={meta_to_json(rec.meta)}",
         ",".join(names + (["movement"] if rec.movement is not None else [])),
     ]
-    rows = [",".join(map(repr, row)) for row in np.hstack(blocks).tolist()]
-    if rec.movement is not None:
-        rows = [f"{row},{int(m)}" for row, m in zip(rows, rec.movement.tolist(), strict=True)]
-    p.write_text("\n".join(lines + rows) + "\n", encoding="utf-8")
+    table = np.hstack(blocks)
+    with atomic_output(p) as tmp, tmp.open("w", encoding="utf-8") as f:
+        f.write("\n".join(lines) + "\n")
+        for start in range(0, table.shape[0], CSV_BLOCK_ROWS):
+            part = np.s_[start : start + CSV_BLOCK_ROWS]  # bounded memory: one block of text
+            rows = [",".join(map(repr, row)) for row in table[part].tolist()]
+            if rec.movement is not None:
+                moving = rec.movement[part].tolist()
+                rows = [f"{row},{int(m)}" for row, m in zip(rows, moving, strict=True)]
+            f.write("\n".join(rows) + "\n")
 
 
 def _read_margtrack(path: Path, comments: list[str], header: list[str], skip: int) -> Recording:
@@ -183,8 +185,10 @@ def read_csv(
     frame: str | None = None,
     check_units: bool = True,
     mag_unit: str | None = None,
+    delimiter: str | None = None,
+    decimal: str | None = None,
 ) -> Recording:
-    """Read a Recording from margtrack CSV, or from any comma-separated file via ``columns``.
+    """Read a Recording from margtrack CSV, or from any delimited text file via ``columns``.
 
     Parameters
     ----------
@@ -192,7 +196,12 @@ def read_csv(
     columns : None for margtrack CSV (its header fixes columns, SI units, frame, name and meta).
         Otherwise a mapping from field to column names in the file: ``"gyr"`` and ``"acc"``
         (3 each, x y z) are required; ``"t"`` (1), ``"mag"`` (3), ``"quat_true"`` (4,
-        ``w x y z``) and ``"movement"`` (1, values 0/1) are optional.
+        ``w x y z``; NaN or empty rows are truth holes, skipped by the metrics) and
+        ``"movement"`` (1, values 0/1) are optional. A value may be one string,
+        ``"gx,gy,gz"``. Empty or non-finite gyr/acc/mag cells are held and flagged (see
+        :mod:`margtrack.io.mapped`); a truncated last line is left out with a warning.
+    delimiter, decimal : for mapped files: ``","``, ``";"``, ``"tab"``, ``"whitespace"`` and
+        ``"."``, ``","``; None (default) detects them (:func:`margtrack.io.csv_layout.sniff`).
     gyr_unit : "rad/s" or "deg/s", the unit of the gyr columns (converted to rad/s).
     acc_unit : "m/s2" or "g", the unit of the acc columns (converted to m/s²).
     time_unit : "s", "ms", "us" or "ns", the unit of the time column (converted to s).
@@ -215,11 +224,12 @@ def read_csv(
     comments, header, skip = _header(p)
     if columns is None:
         if not (comments and comments[0].startswith(MAGIC)):
+            from margtrack.io.csv_layout import mapping_hint, sniff
+
+            header = sniff(p, delimiter, decimal).header
             raise ValueError(
-                f"{p} is not a margtrack CSV (its first line is not '{MAGIC} ...'); pass a "
-                "column mapping, e.g. read_csv(path, columns={'t': ['time'], "
-                "'gyr': ['gx', 'gy', 'gz'], 'acc': ['ax', 'ay', 'az']}, gyr_unit=..., acc_unit=...)"
-                f"; its columns are {header}"
+                f"{p} is not a margtrack CSV (its first line is not '{MAGIC} ...'); "
+                f"{mapping_hint(header)}; the file has columns {header}"
             )
         given = {"gyr_unit": (gyr_unit, "rad/s"), "acc_unit": (acc_unit, "m/s2"),
                  "time_unit": (time_unit, "s"), "mag_unit": (mag_unit, None),
@@ -234,67 +244,59 @@ def read_csv(
         if frame is not None and check_frame(frame) != rec.frame:
             raise ValueError(f"{p} has frame {rec.frame}, not {frame!r}; leave frame=None")
         return rec
-    units = {"gyr": gyr_unit, "acc": acc_unit, "t": time_unit}
-    if mag_unit is not None:
-        units["mag"] = mag_unit
-    return _read_mapped(p, header, skip, columns, units, rate_hz,
-                        "ENU" if frame is None else frame, check_units)
+    units = {"gyr": gyr_unit, "acc": acc_unit, "time": time_unit, "mag": mag_unit}
+    return _read_mapped(p, columns, units, rate_hz, "ENU" if frame is None else frame,
+                        check_units, delimiter, decimal)
 
 
 def _read_mapped(
-    path: Path, header: list[str], skip: int, columns: Mapping[str, Sequence[str] | str],
-    units: dict[str, str], rate_hz: float | None, frame: str, check_units: bool,
+    path: Path, columns: Mapping[str, Sequence[str] | str], units: dict[str, str | None],
+    rate_hz: float | None, frame: str, check_units: bool,
+    delimiter: str | None = None, decimal: str | None = None,
 ) -> Recording:
-    unknown = sorted(set(columns) - set(_FIELD_WIDTHS))
-    if unknown:
-        raise ValueError(f"columns has unknown fields {unknown}; use {sorted(_FIELD_WIDTHS)}")
+    """Any delimited table through a column map (:mod:`margtrack.io.csv_layout`)."""
+    from margtrack.io.csv_layout import mapping_hint, normalise_columns, read_table, sniff
+    from margtrack.io.mapped import build_recording
+
+    mapping = normalise_columns(columns)
     for required in ("gyr", "acc"):
-        if required not in columns:
+        if required not in mapping:
             raise ValueError(f"columns must map {required!r} to 3 column names (x, y, z)")
     for signal, unit in units.items():
-        unit_factor("time" if signal == "t" else signal, unit)  # unknown units fail early
-    if "t" in columns and rate_hz is not None:
+        if unit is not None:
+            unit_factor(signal, unit)  # unknown units fail early
+    if "t" in mapping and rate_hz is not None:
         raise ValueError("give either a time column (columns['t']) or rate_hz, not both")
-    if "t" not in columns and rate_hz is None:
+    if "t" not in mapping and rate_hz is None:
         raise ValueError(
-            f"{path}: no time column mapped; pass columns={{'t': [<time column>], ...}} "
-            "or rate_hz=<sampling rate in Hz> (no rate is assumed)"
+            f"{path}: no time column mapped; map one (--column t=NAME, or columns={{'t': "
+            "NAME, ...}}) or give the sampling rate in Hz (rate_hz=...; no rate is assumed)"
         )
-    mapping = {k: [v] if isinstance(v, str) else list(v) for k, v in columns.items()}
-    for field, names in mapping.items():
-        if len(names) != _FIELD_WIDTHS[field]:
-            raise ValueError(
-                f"columns[{field!r}] must name {_FIELD_WIDTHS[field]} column(s), got {names}"
-            )
-    data = _load_fields(path, mapping, header, skip, "; fix the mapping passed as columns=")
-    extra: dict[str, Any] = {}
-    if "quat_true" in data:
-        extra["quat_true"] = data["quat_true"]
-    with _naming_path(path):
-        if "movement" in data:
-            extra["movement"] = _movement(data["movement"], mapping["movement"][0])
-        t = convert_unit(data["t"], "time", units["t"]) if "t" in data else None
-        mag = data.get("mag")
-        if mag is not None and "mag" in units:
-            mag = convert_unit(mag, "mag", units["mag"])
-        converted = {
-            "time" if signal == "t" else signal: unit for signal, unit in units.items()
-            if unit_factor("time" if signal == "t" else signal, unit) != 1.0
-            and (signal != "mag" or mag is not None)
-        }
-        meta: dict[str, Any] = {"source": str(path), "columns": mapping, "units": units}
-        if converted:
-            meta["units_converted"] = converted
-        if rate_hz is not None:
-            meta["rate_hz"] = float(rate_hz)
-        rec = Recording.from_arrays(
-            data["gyr"], data["acc"], mag, t=t, rate_hz=rate_hz,
-            gyr_unit=units["gyr"], acc_unit=units["acc"], check_units=False,
-            frame=frame, name=path.stem, meta=meta, **extra,
-        )
-        if check_units:
-            check_unit_magnitudes(rec.gyr, rec.acc, fix=unit_fix_keyword("read_csv"))
-        return rec
+    table = sniff(path, delimiter, decimal)
+    names = [c for cols in mapping.values() for c in cols]
+    try:
+        values, lines, dropped = read_table(table, names)
+    except KeyError as exc:
+        good = {k: v for k, v in mapping.items() if all(c in table.header for c in v)}
+        raise ValueError(
+            f"{path}: no column {exc.args[0]!r}; the file has columns {table.header}; "
+            + mapping_hint(table.header, good)
+        ) from None
+    data: dict[str, NDArray[np.float64]] = {}
+    start = 0
+    for field, cols in mapping.items():
+        block = values[:, start:start + len(cols)]
+        data[field] = block[:, 0].copy() if len(cols) == 1 else block.copy()
+        start += len(cols)
+    meta: dict[str, Any] = {"source": str(path), "columns": mapping}
+    if table.delimiter != "," or table.decimal != ".":
+        meta["layout"] = {"delimiter": table.delimiter or "whitespace", "decimal": table.decimal}
+    if dropped is not None:
+        meta["dropped_lines"] = [int(dropped)]
+    return build_recording(
+        str(path), data, units, rate_hz=rate_hz, frame=frame, name=path.stem, meta=meta,
+        lines=lines, check_units=check_units, fix_where="read_csv", columns=mapping,
+    )
 
 
 def _output_columns(name: str, value: NDArray[Any], n: int) -> tuple[list[str], NDArray[Any]]:
@@ -317,7 +319,7 @@ def write_estimate_csv(
 
     Parameters
     ----------
-    path : file to create or overwrite.
+    path : file to create or overwrite (atomically: a temporary file renamed into place).
     t : (N,) timestamps, s.
     quat : (N, 4) orientation ``[w, x, y, z]`` of the body in the estimator's earth frame.
     outputs : other per-sample series, name (with its unit, e.g. ``"bias_rad_s"``) to array
@@ -325,6 +327,60 @@ def write_estimate_csv(
         any other shape is flattened row-major per sample to ``name_0 .. name_{k-1}``.
         Booleans and integers (flags) are written as whole numbers (1, 0, 34).
     """
+    table = estimate_csv_table(t, quat, outputs)
+    with atomic_output(_writable(path)) as tmp, tmp.open("w", encoding="utf-8") as f:
+        f.write(table.header())
+        for text in table.row_blocks():
+            f.write(text)
+
+
+#: rows formatted at a time when writing CSV (bounds the memory the text takes)
+CSV_BLOCK_ROWS = 10_000
+
+
+class EstimateCsvTable:
+    """The columns of an estimate as CSV: names, which are whole numbers, the values.
+
+    Built by :func:`estimate_csv_table`; :meth:`header` is the first line, :meth:`row_blocks`
+    the data lines, formatted ``CSV_BLOCK_ROWS`` at a time (floats with ``repr``: exact).
+    """
+
+    def __init__(self, names: list[str], integer: list[bool], blocks: list[NDArray[Any]]):
+        self.names = names
+        self.integer = integer
+        self.blocks = blocks
+
+    def header(self) -> str:
+        """The column names line, with its line break."""
+        return ",".join(self.names) + "\n"
+
+    def row_blocks(self) -> Iterator[str]:
+        """Successive strings of up to ``CSV_BLOCK_ROWS`` data lines, each ending in a break."""
+        n = self.blocks[0].shape[0]
+        for start in range(0, n, CSV_BLOCK_ROWS):
+            part = np.s_[start : start + CSV_BLOCK_ROWS]
+            columns: list[list[str]] = []
+            for block, first in zip(self.blocks, self._offsets(), strict=True):
+                for j in range(block.shape[1]):
+                    values = block[part, j]
+                    if self.integer[first + j]:
+                        columns.append(list(map(str, values.astype(np.int64).tolist())))
+                    else:
+                        columns.append(list(map(repr, values.tolist())))
+            yield "\n".join(map(",".join, zip(*columns, strict=True))) + "\n"
+
+    def _offsets(self) -> list[int]:
+        out, k = [], 0
+        for block in self.blocks:
+            out.append(k)
+            k += block.shape[1]
+        return out
+
+
+def estimate_csv_table(
+    t: ArrayLike, quat: ArrayLike, outputs: Mapping[str, ArrayLike] | None = None
+) -> EstimateCsvTable:
+    """The CSV columns of an estimate (see :func:`write_estimate_csv`), shapes and names checked."""
     t_arr = np.asarray(t, dtype=np.float64)
     q_arr = np.asarray(quat, dtype=np.float64)
     if t_arr.ndim != 1:
@@ -346,9 +402,4 @@ def write_estimate_csv(
     duplicated = sorted({c for c in names if names.count(c) > 1})
     if duplicated:
         raise ValueError(f"output columns {duplicated} clash; rename the outputs")
-    formats = [(lambda v: str(int(v))) if is_int else repr for is_int in integer]
-    rows = [
-        ",".join(f(v) for f, v in zip(formats, row, strict=True))
-        for row in np.hstack(blocks).tolist()
-    ]
-    _writable(path).write_text("\n".join([",".join(names), *rows]) + "\n", encoding="utf-8")
+    return EstimateCsvTable(names, integer, blocks)
