@@ -7,16 +7,18 @@ from typing import Annotated
 
 import typer
 
-from margtrack.cli.app import app, console, err_console, friendly_errors
+from margtrack.cli.app import app, console, err_console, friendly_errors, warn
 from margtrack.cli.options import (
     AccUnitOption,
+    ColumnOption,
     GyrUnitOption,
     MagUnitOption,
     MethodOption,
     ParamOption,
+    ProfileOption,
     TimeUnitOption,
-    check_units,
-    units,
+    read_options,
+    reader_warnings,
 )
 
 
@@ -35,52 +37,53 @@ def run(
     acc_unit: AccUnitOption = None,
     mag_unit: MagUnitOption = None,
     time_unit: TimeUnitOption = None,
+    column: ColumnOption = None,
+    profile: ProfileOption = None,
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace the output file if it exists.")
+    ] = False,
+    chunk_samples: Annotated[
+        int,
+        typer.Option(
+            "--chunk-samples", min=1,
+            help="Samples processed at a time (bounds the memory; results do not depend on it).",
+        ),
+    ] = 1_000_000,
 ) -> None:
     """Estimate the orientation of a recording and save it (datasets `t` and `quat`)."""
-    from margtrack import io, methods
-    from margtrack.bench.metrics import error_series, summarize
+    from rich.progress import Progress
 
-    rec = check_units(io.read(path, **units(gyr_unit, acc_unit, mag_unit, time_unit)), path)
-    for name, hit in rec.saturation().items():
-        advice = (
-            "remove the magnet or metal near the sensor"
-            if name == "mag"
-            else "choose a wider sensor range"
-        )
-        err_console.print(
-            f"[yellow]warning:[/] {name} sits at its range limit ±{hit.level:.4g} from sample "
-            f"{hit.first_sample} ({hit.n_samples} samples); estimates there are unreliable: "
-            f"{advice}",
-            soft_wrap=True,
-        )
-    values: dict[str, object] = {}
+    from margtrack import methods
+    from margtrack.bench.chunked import run_file
+    from margtrack.io.safe_output import check_output
+
+    check_output(output, [path], force=force)  # before any reading or computing
+    cal = None
     if calibration is not None:
         from margtrack.calibration import load_calibration
 
         cal = load_calibration(calibration)
-        rec = cal.apply(rec)
         values = cal.parameter_values(methods.get(method).params_type)
         told = ", ".join(f"{k}={v:.4g}" for k, v in values.items())
         console.print(f"applied calibration {calibration}" + (f"; sets {told}" if told else ""))
-    # parameters given with -p win over the calibration's
-    values.update(methods.parse_params_items(param or ()))
-    estimator = methods.create(method, values)
-    estimate = estimator.run(rec)
-    if frame is not None:
-        estimate = estimate.in_frame(frame)
-    io.write_estimate(estimate, output)
-    console.print(
-        f"{estimator.name}: {estimate.n_samples} samples, frame {estimate.frame} -> {output}"
-    )
-    if estimate.flags is not None:
-        from margtrack.estimator.flags import summary
-
-        console.print(summary(estimate.flags), soft_wrap=True)
-    if rec.quat_true is not None:
-        s = summarize(
-            error_series(estimate.quat, rec.quat_true, estimate.frame, rec.frame), rec.movement
+    # a progress bar on a terminal (long recordings take minutes), nothing in pipes and logs;
+    # parameters given with -p win over the calibration's (run_file merges them so)
+    with reader_warnings(), Progress(
+        console=err_console, transient=True, disable=not err_console.is_terminal
+    ) as bar:
+        task = bar.add_task(f"{path.name}", total=None)
+        result = run_file(
+            path, output, method, param or (), calibration=cal, frame=frame,
+            read_kwargs=read_options(gyr_unit, acc_unit, mag_unit, time_unit, column, profile),
+            chunk_samples=chunk_samples, force=force, on_warning=warn,
+            progress=lambda done, total: bar.update(task, completed=done, total=total),
         )
+    console.print(f"{result.method}: {result.samples} samples, frame {result.frame} -> {output}")
+    if result.flag_summary:
+        console.print(result.flag_summary, soft_wrap=True)
+    if result.total_rmse_deg is not None:
         console.print(
-            f"against the truth: total {s.total_rmse_deg:.2f} deg, heading "
-            f"{s.heading_rmse_deg:.2f} deg, inclination {s.inclination_rmse_deg:.2f} deg RMSE"
+            f"against the truth: total {result.total_rmse_deg:.2f} deg, heading "
+            f"{result.heading_rmse_deg:.2f} deg, inclination {result.inclination_rmse_deg:.2f} "
+            "deg RMSE"
         )

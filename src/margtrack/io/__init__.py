@@ -1,4 +1,5 @@
-"""Reading and writing recordings: margtrack CSV and HDF5, BROAD trials, x-IMU3 exports.
+"""Reading and writing recordings: margtrack CSV and HDF5, BROAD trials, x-IMU3 exports,
+any delimited table through a column map, phone loggers, per-sensor files, DataFrames.
 
 :func:`read` picks the reader from the content of the path, :func:`write` the writer from
 the extension; the format-specific functions are re-exported here.
@@ -6,6 +7,8 @@ the extension; the format-specific functions are re-exported here.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +16,17 @@ import h5py
 
 from margtrack.io.broad import BroadTrial, broad_trials, read_broad
 from margtrack.io.csv import is_margtrack_csv, read_csv, write_csv, write_estimate_csv
+from margtrack.io.dataframe import from_dataframe
 from margtrack.io.hdf5 import _naming_path, read_hdf5, write_estimate_hdf5, write_hdf5
+from margtrack.io.live_hdf5 import (
+    LIVE_FORMAT,
+    is_live_recording,
+    read_live_recording,
+    write_live_recording,
+)
+from margtrack.io.mapped import flag_invalid
+from margtrack.io.phone import read_sensor_files
+from margtrack.io.profile import load_profile, merge_profile
 from margtrack.io.xio import read_xio_body, read_xio_quaternion, read_xio_sensor
 from margtrack.recording import Recording
 from margtrack.units import unit_factor
@@ -21,11 +34,16 @@ from margtrack.units import unit_factor
 __all__ = [
     "BroadTrial",
     "broad_trials",
+    "flag_invalid",
+    "from_dataframe",
+    "load_profile",
     "read",
     "read_any",
     "read_broad",
     "read_csv",
     "read_hdf5",
+    "read_live_recording",
+    "read_sensor_files",
     "read_xio_body",
     "read_xio_quaternion",
     "read_xio_sensor",
@@ -35,20 +53,26 @@ __all__ = [
     "write_estimate_csv",
     "write_estimate_hdf5",
     "write_hdf5",
+    "write_live_recording",
 ]
 
 HDF5_SUFFIXES = (".h5", ".hdf5")
 CSV_SUFFIXES = (".csv",)
+TABLE_SUFFIXES = (".csv", ".tsv", ".txt")  # read as delimited tables (written: .csv only)
 _SUPPORTED = ", ".join((*HDF5_SUFFIXES, *CSV_SUFFIXES))
 
 
 def read(
-    path: str | Path,
+    path: str | Path | Sequence[str | Path],
     *,
     gyr_unit: str | None = None,
     acc_unit: str | None = None,
     mag_unit: str | None = None,
     time_unit: str | None = None,
+    columns: Mapping[str, Sequence[str] | str] | None = None,
+    profile: str | Path | None = None,
+    delimiter: str | None = None,
+    decimal: str | None = None,
     **kw: Any,
 ) -> Recording:
     """Read a Recording, choosing the reader from what ``path`` contains.
@@ -57,10 +81,15 @@ def read(
     ----------
     path : one of
         - a folder with ``Inertial.csv``: an x-IMU3 sensor (:func:`read_xio_sensor`);
+        - a folder of per-sensor files (``Gyroscope.csv``, ``Accelerometer.csv``...: Sensor
+          Logger, phyphox or any logger writing one file per sensor), or a list of such
+          files: merged onto the gyroscope's timestamps (:func:`read_sensor_files`);
         - ``.h5``/``.hdf5`` with a dataset ``imu_gyr``: a BROAD trial (:func:`read_broad`);
         - any other ``.h5``/``.hdf5``: margtrack HDF5 (:func:`read_hdf5`);
-        - ``.csv``: margtrack CSV (:func:`read_csv`); another CSV needs ``columns=`` (see
-          :func:`read_csv`), which is passed on with the other keywords.
+        - ``.csv``/``.tsv``/``.txt``: margtrack CSV (:func:`read_csv`), a phyphox table
+          with gyroscope and accelerometer (recognised from its header), or any table
+          through ``columns``; otherwise the error lists the file's columns and the
+          ``--column`` flags (guessed from the names) that map them.
     gyr_unit, acc_unit, mag_unit, time_unit : the units the file's raw gyroscope,
         accelerometer, magnetometer and timestamp values are really in (the tables of
         :mod:`margtrack.recording`: "deg/s", "g", "nT", "ms"...); None (default) means the
@@ -75,6 +104,12 @@ def read(
         - a mapped CSV (``columns=``) has no units of its own; the declarations go to
           :func:`read_csv` (rad/s, m/s², s and the magnetometer unchanged when undeclared).
         The conversions are recorded in ``meta["units_converted"]``.
+    columns : field -> column name(s) of a table (:func:`read_csv`): ``{"t": "time_ms",
+        "gyr": ["gx", "gy", "gz"], "acc": "ax,ay,az"}``.
+    profile : an import profile (TOML, :mod:`margtrack.io.profile`) with the columns,
+        units and layout of a lab's logger; the other arguments win over it.
+    delimiter, decimal : the table layout (``";"``, ``"tab"``...; ``","``), detected when
+        None.
     **kw : keyword arguments for the chosen reader.
 
     Returns
@@ -86,15 +121,32 @@ def read(
     The x-IMU3 and mapped-CSV readers' own checks are switched off for that reason (pass
     ``check_units=True`` to keep them).
     """
+    if profile is not None:
+        settings = merge_profile(profile, {
+            "gyr_unit": gyr_unit, "acc_unit": acc_unit, "mag_unit": mag_unit,
+            "time_unit": time_unit, "columns": columns, "delimiter": delimiter,
+            "decimal": decimal, **{k: kw.pop(k) for k in ("frame", "rate_hz") if k in kw},
+        })
+        return read(path, **settings, **kw)
     declared = {"gyr_unit": gyr_unit, "acc_unit": acc_unit, "mag_unit": mag_unit,
                 "time_unit": time_unit}
     for arg, unit in declared.items():
         if unit is not None:
             unit_factor(arg.removesuffix("_unit"), unit)  # unknown units fail before reading
     given = {k: v for k, v in declared.items() if v is not None}
+    layout = {"delimiter": delimiter, "decimal": decimal}
+    if not isinstance(path, str | Path):
+        if columns is not None:
+            raise ValueError("columns= maps one table; per-sensor files are mapped by name")
+        return read_sensor_files(path, **given, **layout, **kw)
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"no such file or folder: {p}")
+    if columns is not None and not (p.is_file() and p.suffix.lower() in TABLE_SUFFIXES):
+        raise ValueError(
+            f"{p}: a column map (--column / columns=) applies to a CSV/TSV table, not to "
+            "this " + ("folder" if p.is_dir() else f"{p.suffix} file") + "; leave it out"
+        )
     if p.is_dir():
         if (p / "Inertial.csv").is_file():
             return read_xio_sensor(p, **{"check_units": False, **kw, **given})
@@ -103,33 +155,67 @@ def read(
                 f"{p} holds several x-IMU3 sensor folders; read them all with "
                 "read_xio_body(path) or one with read(path / <sensor>)"
             )
-        raise ValueError(f"{p} is a folder without an x-IMU3 Inertial.csv; give a file path")
+        from margtrack.io.phone import sensor_files
+
+        if "gyr" in sensor_files(p):
+            return read_sensor_files(p, **given, **layout, **kw)
+        raise ValueError(
+            f"{p} is a folder without an x-IMU3 Inertial.csv or per-sensor files "
+            "(Gyroscope.csv, Accelerometer.csv, Magnetometer.csv); give a file path"
+        )
     suffix = p.suffix.lower()
     if suffix in HDF5_SUFFIXES:
         try:
             with h5py.File(p, "r") as f:
                 is_broad = "imu_gyr" in f
+                is_live = f.attrs.get("format") == LIVE_FORMAT
         except OSError as exc:
             raise ValueError(f"{p} is not a readable HDF5 file: {exc}") from None
+        if is_live:
+            raise ValueError(f"{p} is a live recording of several sensors: read them with "
+                             "read_any(path) or read_live_recording(path)")
         rec = read_broad(p, **kw) if is_broad else read_hdf5(p, **kw)
         return _declared(rec, p, declared)
-    if suffix in CSV_SUFFIXES:
-        if "columns" in kw:
-            return read_csv(p, **{"check_units": False, **kw, **given})
+    if suffix in TABLE_SUFFIXES:
+        if columns is not None:
+            return read_csv(p, columns, **{"check_units": False, **kw, **given, **layout})
         if is_margtrack_csv(p):
             return _declared(read_csv(p, **kw), p, declared)
-        hint = ""
-        if p.name == "Inertial.csv":
-            hint = f"; it looks like an x-IMU3 export: use read(r'{p.parent}') on its folder"
-        raise ValueError(
-            f"{p} is not a margtrack CSV; read it with read_csv(path, columns={{'t': [...], "
-            "'gyr': [...], 'acc': [...]}}, gyr_unit=..., acc_unit=..., time_unit=...) "
-            f"mapping your column names{hint}"
-        )
+        return _read_other_table(p, given, layout, kw)
     raise ValueError(
-        f"cannot read {p}: unsupported extension {p.suffix!r}; supported: {_SUPPORTED}"
-        " or an x-IMU3 sensor folder"
+        f"cannot read {p}: unsupported extension {p.suffix!r}; supported: {_SUPPORTED}, "
+        ".tsv, .txt, an x-IMU3 sensor folder or a folder of per-sensor files"
     )
+
+
+def _read_other_table(
+    p: Path, given: dict[str, str], layout: dict[str, str | None], kw: dict[str, Any]
+) -> Recording:
+    """A table that is not margtrack's: a phone logger's, or an error giving the mapping."""
+    from margtrack.io.csv_layout import mapping_hint, sniff
+    from margtrack.io.phone import phone_columns
+
+    header = sniff(p, **layout).header
+    found = phone_columns(header)
+    if found is not None:
+        cols, units = found
+        phone_units = {f"{k}_unit": v for k, v in units.items()}
+        rec = read_csv(p, cols, **{"check_units": False, **kw, **phone_units, **given,
+                                   **layout})
+        return replace(rec, meta={**rec.meta, "layout_name": "phyphox"})
+    if p.name == "Inertial.csv":
+        raise ValueError(
+            f"{p} looks like an x-IMU3 export: use read(r'{p.parent}') on its folder"
+        )
+    if {"time", "seconds_elapsed", "x", "y", "z"} <= set(header) or any(
+        h.startswith(("Gyroscope x", "Acceleration x", "Magnetic field x")) for h in header
+    ):
+        raise ValueError(
+            f"{p} is one sensor of a phone logger export (one file per sensor); give the "
+            f"folder that holds Gyroscope.csv and the accelerometer file: {p.parent}"
+        )
+    raise ValueError(f"{p} is not a margtrack CSV; the file has columns {header}; "
+                     + mapping_hint(header))
 
 
 def _declared(rec: Recording, path: Path, declared: dict[str, str | None]) -> Recording:
@@ -165,11 +251,17 @@ def read_any(
     acc_unit: str | None = None,
     mag_unit: str | None = None,
     time_unit: str | None = None,
+    **options: Any,
 ) -> list[Recording]:
     """Every recording at ``path``: one file, a folder of BROAD trials, or an x-IMU3 body.
 
+    ``options`` (``columns``, ``profile``, ``delimiter``, ``decimal``) go to :func:`read`
+    for a single table or a folder of per-sensor files.
+
     A folder of ``.hdf5`` trials gives them all in name order, a folder of x-IMU3 sensor
-    folders gives each sensor (sorted by folder name); anything else is :func:`read`.
+    folders gives each sensor (sorted by folder name), a raw live recording
+    (:mod:`margtrack.io.live_hdf5`) one Recording per sensor in the source's order;
+    anything else is :func:`read`.
     The declared units apply to every recording, as in :func:`read`.
     """
     units = {"gyr_unit": gyr_unit, "acc_unit": acc_unit, "mag_unit": mag_unit,
@@ -183,7 +275,10 @@ def read_any(
             return [read(d, **units) for d in sorted(
                 d for d in p.iterdir() if (d / "Inertial.csv").is_file()
             )]
-    return [read(p, **units)]
+    if p.is_file() and p.suffix.lower() in HDF5_SUFFIXES and is_live_recording(p):
+        recs = read_live_recording(p).recordings.values()  # one per sensor, source order
+        return [_declared(r, p, units) for r in recs]
+    return [read(p, **units, **{k: v for k, v in options.items() if v is not None})]
 
 
 def write_estimate(estimate: Any, path: str | Path) -> None:
@@ -191,29 +286,15 @@ def write_estimate(estimate: Any, path: str | Path) -> None:
 
     The health flags go with them (dataset or column ``flags``, bits of
     :class:`margtrack.estimator.Flag`). HDF5 also stores ``method``, ``frame``, the
-    parameters and the flag bits (``flag_bits``) as attributes.
+    parameters and the flag bits (``flag_bits``) as attributes. The file is written to a
+    temporary file and renamed into place (an existing file is replaced: check first with
+    :func:`margtrack.io.safe_output.check_output`); a long run can be written chunk by
+    chunk with :class:`margtrack.io.estimate_writer.EstimateWriter`, which this uses.
     """
-    p = Path(path)
-    suffix = p.suffix.lower()
-    outputs = dict(estimate.outputs)
-    flags = getattr(estimate, "flags", None)
-    if flags is not None:
-        outputs["flags"] = flags
-    if suffix in HDF5_SUFFIXES:
-        from margtrack.estimator.flags import Flag
+    from margtrack.io.estimate_writer import EstimateWriter
 
-        attrs = {
-            "method": estimate.method,
-            "frame": estimate.frame,
-            "params": dict(estimate.params),
-            "flag_bits": {str(f.name): int(f) for f in Flag},
-        }
-        write_estimate_hdf5(p, estimate.t, estimate.quat, outputs, attrs)
-    elif suffix in CSV_SUFFIXES:
-        if estimate.quat.ndim != 2:
-            raise ValueError("a CSV holds one sensor; write several sensors to HDF5")
-        write_estimate_csv(p, estimate.t, estimate.quat, outputs)
-    else:
-        raise ValueError(
-            f"cannot write {p}: unsupported extension {p.suffix!r}; use one of {_SUPPORTED}"
-        )
+    p = Path(path)
+    if p.suffix.lower() in CSV_SUFFIXES and estimate.quat.ndim != 2:
+        raise ValueError("a CSV holds one sensor; write several sensors to HDF5")
+    with EstimateWriter(p) as writer:
+        writer.append(estimate)

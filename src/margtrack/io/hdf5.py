@@ -21,6 +21,7 @@ import h5py
 import numpy as np
 from numpy.typing import ArrayLike
 
+from margtrack.io.safe_output import atomic_output
 from margtrack.recording import Recording
 from margtrack.units import UnitError
 
@@ -89,7 +90,7 @@ def write_hdf5(rec: Recording, path: str | Path) -> None:
     """
     p = _writable(path)
     meta = meta_to_json(rec.meta)  # fail before the file is touched
-    with h5py.File(p, "w") as f:
+    with atomic_output(p) as tmp, h5py.File(tmp, "w") as f:
         f.attrs["format"] = RECORDING_FORMAT
         f.attrs["version"] = VERSION
         f.attrs["frame"] = rec.frame
@@ -165,6 +166,19 @@ def write_estimate_hdf5(
     The file also carries ``format="margtrack-estimate"`` and ``version=1``.
     """
     p = _writable(path)
+    t_arr, q_arr = estimate_arrays(t, quat)
+    datasets = estimate_outputs(outputs, t_arr.shape[0])
+    plain, as_json = estimate_attrs(attrs)
+    with atomic_output(p) as tmp, h5py.File(tmp, "w") as f:
+        write_estimate_attrs(f, plain, as_json)
+        f.create_dataset("t", data=t_arr)
+        f.create_dataset("quat", data=q_arr)
+        for name, arr in datasets.items():
+            f.create_dataset(name, data=arr)
+
+
+def estimate_arrays(t: ArrayLike, quat: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """``t`` (N,) and ``quat`` (N, 4) as float64 arrays, shapes checked."""
     t_arr = np.asarray(t, dtype=np.float64)
     q_arr = np.asarray(quat, dtype=np.float64)
     if t_arr.ndim != 1:
@@ -172,6 +186,11 @@ def write_estimate_hdf5(
     n = t_arr.shape[0]
     if q_arr.shape != (n, 4):
         raise ValueError(f"quat must have shape ({n}, 4) to match t, got {q_arr.shape}")
+    return t_arr, q_arr
+
+
+def estimate_outputs(outputs: Mapping[str, ArrayLike] | None, n: int) -> dict[str, np.ndarray]:
+    """The outputs of an estimate as arrays with first axis ``n``, names checked."""
     datasets: dict[str, np.ndarray] = {}
     for name, value in (outputs or {}).items():
         if name in ("t", "quat") or not name or "/" in name:
@@ -180,6 +199,11 @@ def write_estimate_hdf5(
         if arr.shape[:1] != (n,):
             raise ValueError(f"output {name!r} has shape {arr.shape}; its first axis must be N={n}")
         datasets[name] = arr
+    return datasets
+
+
+def estimate_attrs(attrs: Mapping[str, Any] | None) -> tuple[dict[str, Any], dict[str, str]]:
+    """Split run attributes into plain HDF5 values and JSON strings (see write_estimate_hdf5)."""
     plain: dict[str, Any] = {}
     as_json: dict[str, str] = {}
     for key, value in (attrs or {}).items():
@@ -192,13 +216,15 @@ def write_estimate_hdf5(
                 as_json[key] = json.dumps(value, default=_json_default, sort_keys=True)
             except TypeError as exc:
                 raise ValueError(f"attribute {key!r} cannot be written as JSON: {exc}") from None
-    with h5py.File(p, "w") as f:
-        f.attrs["format"] = ESTIMATE_FORMAT
-        f.attrs["version"] = VERSION
-        f.attrs["json_attrs"] = json.dumps(sorted(as_json))
-        for key, value in {**plain, **as_json}.items():
-            f.attrs[key] = value
-        f.create_dataset("t", data=t_arr)
-        f.create_dataset("quat", data=q_arr)
-        for name, arr in datasets.items():
-            f.create_dataset(name, data=arr)
+    return plain, as_json
+
+
+def write_estimate_attrs(
+    f: h5py.File, plain: Mapping[str, Any], as_json: Mapping[str, str]
+) -> None:
+    """The file attributes of an estimate: format, version, ``json_attrs`` and the run's."""
+    f.attrs["format"] = ESTIMATE_FORMAT
+    f.attrs["version"] = VERSION
+    f.attrs["json_attrs"] = json.dumps(sorted(as_json))
+    for key, value in {**plain, **as_json}.items():
+        f.attrs[key] = value
