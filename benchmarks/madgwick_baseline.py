@@ -39,7 +39,8 @@ import numpy as np
 from rich.console import Console
 
 from margtrack import quaternion as quat
-from margtrack.bench.broad import EvaluationResult, format_table, group_order
+from margtrack.bench.broad import format_table, group_order
+from margtrack.bench.runner import Scores
 from margtrack.bench.tune import tune
 from margtrack.estimators.base import Estimator, Params, State
 from margtrack.filters._rest_null import RestNullState, subtract_rest_null
@@ -107,7 +108,7 @@ def _recordings(folder: Path, rest_null: bool = False) -> list[tuple[Recording, 
     return [(_without_rest_null(r) if rest_null else r, g) for r, g in recs]
 
 
-def _tune_one(folder: str, beta: float, rest_null: bool = False) -> EvaluationResult:
+def _tune_one(folder: str, beta: float, rest_null: bool = False) -> Scores:
     """One β on every trial (runs in a worker process; reads the trials itself)."""
     recs = _recordings(Path(folder), rest_null)
     return tune(AhrsMadgwick, {"beta": [beta]}, recs, group_order=group_order(Path(folder))).best
@@ -141,7 +142,7 @@ def main() -> None:
         )
     best = results[0]
     console.print(f"grid done in {elapsed:.0f} s; "
-                  f"{best.samples_per_s():.4g} samples/s for ahrs (one process)")
+                  f"{best.samples_per_s:.4g} samples/s for ahrs (one process)")
     console.print(format_table(best))
     console.print(f"[bold]baseline: ahrs Madgwick β = {best.params['beta']}: mean total RMSE "
                   f"{best.mean()['total_rmse_deg']:.2f} deg[/]")
@@ -162,7 +163,7 @@ def main() -> None:
         f"({ours.best.mean()['total_rmse_deg']:.2f} deg), default β = "
         f"{default.params['beta']} ({default.mean()['total_rmse_deg']:.2f} deg) vs ahrs "
         f"Madgwick {best.mean()['total_rmse_deg']:.2f} deg; "
-        f"{ours.best.samples_per_s():.4g} samples/s[/]"
+        f"{ours.best.samples_per_s:.4g} samples/s[/]"
     )
 
 

@@ -31,9 +31,10 @@ def test_compare_scores_truth_as_zero_and_groups_means(tmp_path):
     truth, robust = result.methods
     assert truth.mean()["total_rmse_deg"] < 1e-12
     assert 0.0 < robust.mean()["total_rmse_deg"] < 0.5
-    assert robust.mean("undisturbed")["total_rmse_deg"] == robust.trials[recs[0][0].name][
-        "total_rmse_deg"
-    ]
+    assert (
+        robust.mean("undisturbed")["total_rmse_deg"]
+        == robust.trial(recs[0][0].name).total_rmse_deg
+    )
     with pytest.raises(ValueError, match="no trial in group 'nope'"):
         robust.mean("nope")
     rows = result.table_rows([None])

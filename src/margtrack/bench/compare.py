@@ -7,7 +7,6 @@ speed column is samples per second of pure estimation time in the same run.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,48 +14,23 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from margtrack.bench.metrics import error_series, summarize
+from margtrack.bench.runner import KEYS, Adapter, Method, Scores, evaluate_all
 from margtrack.recording import Recording
 
-__all__ = ["Comparison", "MethodScores", "compare", "plot_comparison"]
-
-KEYS = ("total_rmse_deg", "heading_rmse_deg", "inclination_rmse_deg")
-
-
-@dataclass(frozen=True)
-class MethodScores:
-    """One method's per-trial RMSE figures (deg), trial groups, and its speed."""
-
-    label: str
-    trials: dict[str, dict[str, float]]
-    groups: dict[str, tuple[str, ...]]
-    samples: int
-    seconds: float
-
-    def mean(self, group: str | None = None) -> dict[str, float]:
-        """Mean over trials (of ``group``) of each RMSE figure."""
-        names = [t for t in self.trials if group is None or group in self.groups[t]]
-        if not names:
-            raise ValueError(f"no trial in group {group!r}")
-        return {k: float(np.mean([self.trials[t][k] for t in names])) for k in KEYS}
-
-    @property
-    def samples_per_s(self) -> float:
-        """Samples per second of estimation time."""
-        return self.samples / self.seconds if self.seconds > 0 else float("nan")
+__all__ = ["Comparison", "compare", "plot_comparison"]
 
 
 @dataclass(frozen=True)
 class Comparison:
-    """The scores of every compared method."""
+    """The scores of every compared method (:class:`~margtrack.bench.runner.Scores`)."""
 
-    methods: tuple[MethodScores, ...]
+    methods: tuple[Scores, ...]
 
     def table_rows(self, groups: Sequence[str | None]) -> list[list[str]]:
         """Rows: label, then total/heading/inclination per group, then samples/s."""
         rows = []
         for m in self.methods:
-            row = [m.label]
+            row = [m.method]
             for g in groups:
                 means = m.mean(g)
                 row += [f"{means[k]:.2f}" for k in KEYS]
@@ -67,27 +41,23 @@ class Comparison:
 
 def compare(
     recordings: Sequence[tuple[Recording, tuple[str, ...]]],
-    methods: Sequence[tuple[str, Callable[[Recording], NDArray[np.float64]]]],
+    methods: Sequence[tuple[str, Method | Callable[[Recording], NDArray[np.float64]]]],
     progress: Callable[[str], None] | None = None,
 ) -> Comparison:
-    """Score each ``(label, run)`` where ``run(recording)`` returns (N, 4) quats in ENU."""
+    """Score each ``(label, method)`` on every recording with the one runner.
+
+    ``method`` is an Estimator, an :class:`~margtrack.bench.runner.Adapter`, or a plain
+    function ``run(recording)`` returning (N, 4) quaternions in ENU (made an Adapter).
+    """
     results = []
-    for label, run in methods:
-        trials: dict[str, dict[str, float]] = {}
-        groups: dict[str, tuple[str, ...]] = {}
-        samples, seconds = 0, 0.0
-        for rec, rec_groups in recordings:
+    for label, method in methods:
+        runner = method if isinstance(method, Method) else Adapter(method, label)
+
+        def told(name: str, label: str = label) -> None:
             if progress is not None:
-                progress(f"{label}: {rec.name}")
-            start = time.perf_counter()
-            q = run(rec)
-            seconds += time.perf_counter() - start
-            samples += rec.n_samples
-            assert rec.quat_true is not None
-            s = summarize(error_series(q, rec.quat_true, "ENU", rec.frame), rec.movement)
-            trials[rec.name] = {k: getattr(s, k) for k in KEYS}
-            groups[rec.name] = rec_groups
-        results.append(MethodScores(label, trials, groups, samples, seconds))
+                progress(f"{label}: {name}")
+
+        results.append(evaluate_all(runner, recordings, label=label, progress=told))
     return Comparison(tuple(results))
 
 
@@ -98,7 +68,7 @@ def plot_comparison(comparison: Comparison, path: str | Path, groups: Sequence[s
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    labels = [m.label for m in comparison.methods]
+    labels = [m.method for m in comparison.methods]
     x = np.arange(len(labels))
     width = 0.8 / len(groups)
     fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(labels) + 2), 4.5))

@@ -1,7 +1,10 @@
 """Other libraries' filters behind one adapter shape, for comparisons in the same run.
 
-Each adapter takes a :class:`Recording` and returns quaternions (N, 4) ``[w, x, y, z]`` of
-the body in ENU. The libraries are optional (the ``dev`` extra) and imported on first use:
+Each library is a function of a :class:`Recording` returning quaternions (N, 4)
+``[w, x, y, z]`` of the body in ENU, wrapped as a :class:`~margtrack.bench.runner.Adapter`
+so the one runner runs it like a margtrack method (``run(recording) -> Estimate``; calling
+the adapter gives the bare quaternions). The libraries are optional (the ``dev`` extra)
+and imported on first use:
 
 - ``vqf``: VQF (Laidig & Seel 2023), C++ batch ``VQF.updateBatch``, default parameters;
   its 9-D output is ENU with margtrack's meaning (docs/conventions.md).
@@ -13,12 +16,11 @@ the body in ENU. The libraries are optional (the ``dev`` extra) and imported on 
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 from numpy.typing import NDArray
 
 from margtrack import quaternion as quat
+from margtrack.bench.runner import Adapter
 from margtrack.frames import STANDARD_GRAVITY_M_S2
 from margtrack.recording import Recording
 
@@ -66,7 +68,7 @@ def run_imufusion(rec: Recording) -> Array:
     return out
 
 
-def madgwick(beta: float) -> Callable[[Recording], Array]:
+def madgwick(beta: float) -> Adapter:
     """``ahrs.filters.Madgwick`` with gain ``beta`` (MARG), converted from NWU to ENU."""
 
     def run(rec: Recording) -> Array:
@@ -76,11 +78,11 @@ def madgwick(beta: float) -> Callable[[Recording], Array]:
         q = Madgwick(gyr=gyr, acc=acc, mag=mag, frequency=rec.rate_hz, gain=beta).Q
         return quat.multiply(_NWU_TO_ENU, q)
 
-    return run
+    return Adapter(run, f"ahrs madgwick (beta {beta:g})", {"beta": beta})
 
 
-#: Adapters by name; ``madgwick`` uses the gain measured best on BROAD in the baseline.
-EXTERNAL: dict[str, Callable[[Recording], Array]] = {
-    "vqf": run_vqf,
-    "imufusion": run_imufusion,
+#: Adapters by name (``madgwick`` takes its gain: :func:`madgwick`).
+EXTERNAL: dict[str, Adapter] = {
+    "vqf": Adapter(run_vqf, "vqf"),
+    "imufusion": Adapter(run_imufusion, "imufusion"),
 }

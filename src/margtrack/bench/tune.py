@@ -2,22 +2,31 @@
 
 The honest figure for a filter on BROAD is one parameter set for every trial; this finds
 it. Recordings are read once and kept in memory; each grid point runs the method on every
-trial with a fresh estimator.
+trial from a fresh state through the one runner (:mod:`margtrack.bench.runner`).
+
+The grid points are independent jobs: ``mapper`` spreads them over processes or machines
+(``margtrack tune --workers N`` / ``--scheduler ADDRESS`` pass a Dask-backed one from
+:mod:`margtrack.batch.cluster`); without one they run here, one after the other.
 """
 
 from __future__ import annotations
 
+import functools
 import itertools
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from margtrack.bench.broad import EvaluationResult, evaluate_recordings
-from margtrack.estimators.base import Estimator
+from margtrack.bench.runner import Scores, evaluate_all
+from margtrack.estimators.base import Estimator, Params
 from margtrack.methods import get, parse_params
 from margtrack.recording import Recording
 
-__all__ = ["TuneResult", "parse_grid", "tune"]
+__all__ = ["Mapper", "TuneResult", "evaluate_point", "parse_grid", "tune"]
+
+#: ``mapper(job, items, shared)`` runs ``job(shared, item)`` for every item, anywhere, and
+#: yields ``(index of the item, result)`` as each finishes; an error in a job is raised.
+Mapper = Callable[[Callable[[Any, Any], Any], Sequence[Any], Any], Iterable[tuple[int, Any]]]
 
 
 @dataclass(frozen=True)
@@ -25,10 +34,10 @@ class TuneResult:
     """Every grid point's evaluation, best first by mean total RMSE."""
 
     method: str
-    results: tuple[EvaluationResult, ...]
+    results: tuple[Scores, ...]
 
     @property
-    def best(self) -> EvaluationResult:
+    def best(self) -> Scores:
         """The evaluation with the lowest mean total RMSE."""
         return self.results[0]
 
@@ -44,6 +53,26 @@ def parse_grid(items: Sequence[str]) -> dict[str, list[str]]:
     return grid
 
 
+def evaluate_point(
+    cls: type[Estimator],
+    group_order: tuple[str, ...],
+    recordings: Sequence[tuple[Recording, tuple[str, ...]]],
+    params: Params,
+) -> Scores:
+    """One grid point: method ``cls`` with ``params`` on every recording (a picklable job)."""
+    return evaluate_all(
+        cls(params), recordings, label=cls.name, params=params.as_dict(), group_order=group_order
+    )
+
+
+def _here(
+    job: Callable[[Any, Any], Any], items: Sequence[Any], shared: Any
+) -> Iterator[tuple[int, Any]]:
+    """The mapper without workers: every job in this process, in order."""
+    for i, item in enumerate(items):
+        yield i, job(shared, item)
+
+
 def tune(
     method: str | type[Estimator],
     grid: Mapping[str, Sequence[Any]],
@@ -52,32 +81,35 @@ def tune(
     fixed: Mapping[str, Any] | None = None,
     group_order: Sequence[str] = (),
     progress: Callable[[str], None] | None = None,
+    mapper: Mapper | None = None,
 ) -> TuneResult:
     """Evaluate every combination of ``grid`` (plus ``fixed``) on ``recordings``; best first.
 
     ``method`` is a registered name or an :class:`Estimator` subclass.
 
     ``grid`` maps parameter names to candidate values (strings are coerced like CLI
-    parameters); ``progress`` is told each combination before it runs.
+    parameters); every point is validated before any runs. ``progress`` is told each
+    combination as it finishes; ``mapper`` (:data:`Mapper`) runs the points elsewhere,
+    with ``recordings`` shipped once as the shared argument. The result does not depend
+    on where the points ran: ties keep the grid's order.
     """
     cls = get(method) if isinstance(method, str) else method
     if not grid:
         raise ValueError("the grid is empty: give at least one name=v1,v2,... ")
     names = list(grid)
-    results = []
+    labels, points = [], []
     for values in itertools.product(*(grid[n] for n in names)):
         point = {**(fixed or {}), **dict(zip(names, values, strict=True))}
-        params = parse_params(cls.params_type, point)
+        points.append(parse_params(cls.params_type, point))
+        labels.append(", ".join(f"{k}={v}" for k, v in zip(names, values, strict=True)))
+    job = functools.partial(evaluate_point, cls, tuple(group_order))
+    results: list[Scores | None] = [None] * len(points)
+    for i, scores in (mapper or _here)(job, points, list(recordings)):
+        results[i] = scores
         if progress is not None:
-            progress(", ".join(f"{k}={v}" for k, v in zip(names, values, strict=True)))
-        results.append(
-            evaluate_recordings(
-                lambda params=params: cls(params),
-                recordings,
-                method=cls.name,
-                params=params.as_dict(),
-                group_order=group_order,
-            )
-        )
-    results.sort(key=lambda r: r.mean()["total_rmse_deg"])
-    return TuneResult(cls.name, tuple(results))
+            progress(labels[i])
+    done = [r for r in results if r is not None]
+    if len(done) != len(points):
+        raise RuntimeError(f"the mapper returned {len(done)} of {len(points)} grid points")
+    done.sort(key=lambda r: r.mean()["total_rmse_deg"])
+    return TuneResult(cls.name, tuple(done))

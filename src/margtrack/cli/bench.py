@@ -2,14 +2,30 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from margtrack.cli.app import app, console, friendly_errors
+from margtrack.cli.app import app, console, friendly_errors, warn
+
+#: the peer libraries `bench broad` compares with: name -> the package that provides it
+PEER_PACKAGES = {"vqf": "vqf", "imufusion": "imufusion", "madgwick": "ahrs"}
+
+
+def _peer_installed(name: str) -> bool:
+    """True if the peer library ``name`` imports (unknown names: True, refused later)."""
+    import importlib
+
+    if name not in PEER_PACKAGES:
+        return True
+    try:
+        importlib.import_module(PEER_PACKAGES[name])
+    except ImportError:
+        return False
+    return True
+
 
 bench_app = typer.Typer(
     help="Benchmarks on real data, against other libraries.", no_args_is_help=True
@@ -42,15 +58,21 @@ def bench_broad(
     from margtrack import io, methods
     from margtrack.bench import compare as cmp
     from margtrack.bench import external as ext
+    from margtrack.bench.runner import Method
 
     names = method or [m for m in methods.available() if methods.get(m).uses_gyr]
-    runs: list[tuple[str, Callable]] = []
+    runs: list[tuple[str, Method]] = []
     for name in names:
-        cls = methods.get(name)
-        runs.append((name, lambda rec, cls=cls: cls(frame="ENU").run(rec).quat))
+        runs.append((name, methods.get(name)(frame="ENU")))
     for name in [e.strip() for e in external.split(",") if e.strip()]:
+        if not _peer_installed(name):  # margtrack's own rows run without the peer libraries
+            package = PEER_PACKAGES[name]
+            warn(f"{name} is not installed, its row is left out; add it with "
+                 f"`pip install {package}` (every peer: `pip install 'margtrack[dev]'`)")
+            continue
         if name == "madgwick":
-            runs.append((f"ahrs madgwick (beta {madgwick_beta:g})", ext.madgwick(madgwick_beta)))
+            adapter = ext.madgwick(madgwick_beta)
+            runs.append((adapter.name, adapter))
         elif name in ext.EXTERNAL:
             runs.append((name, ext.EXTERNAL[name]))
         else:
@@ -69,7 +91,7 @@ def bench_broad(
 
         # compile every numba kernel before timing: run each method once on a short slice
         for _, run_one in runs:
-            run_one(recordings[0][0].slice(0, 50))
+            run_one.run(recordings[0][0].slice(0, 50))
         result = cmp.compare(recordings, runs, progress=progress)
     for group in (None, "undisturbed", "disturbed"):
         title = f"BROAD {group or 'all trials'}: mean RMSE over movement samples (deg)"

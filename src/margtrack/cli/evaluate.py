@@ -10,15 +10,19 @@ import typer
 from rich.table import Table
 
 from margtrack.cli.app import app, console, friendly_errors
+from margtrack.cli.batch import SchedulerOption, WorkersOption
 from margtrack.cli.options import (
     AccUnitOption,
+    ColumnOption,
     GyrUnitOption,
     MagUnitOption,
     MethodOption,
     ParamOption,
+    ProfileOption,
     TimeUnitOption,
     check_units,
     read_checked,
+    read_options,
     units,
 )
 from margtrack.recording import Recording
@@ -37,19 +41,18 @@ def evaluate(
     acc_unit: AccUnitOption = None,
     mag_unit: MagUnitOption = None,
     time_unit: TimeUnitOption = None,
+    column: ColumnOption = None,
+    profile: ProfileOption = None,
 ) -> None:
     """Error table (RMSE in degrees) of a method against ground truth."""
     from rich.progress import Progress
 
     from margtrack import io, methods
     from margtrack.bench import broad
+    from margtrack.bench.runner import evaluate_all
 
     estimator = methods.create(method, param or ())
     cls = type(estimator)
-    params = estimator.params
-
-    def make():
-        return cls(params)
 
     unit_kw = units(gyr_unit, acc_unit, mag_unit, time_unit)
     if path.is_dir() and any(path.glob("*.hdf5")):
@@ -61,7 +64,9 @@ def evaluate(
         )
     else:
         trials, order = [], ()
-        recs = [(r, ()) for r in read_checked(path, unit_kw)]
+        recs = [(r, ()) for r in read_checked(
+            path, read_options(gyr_unit, acc_unit, mag_unit, time_unit, column, profile)
+        )]
     with Progress(transient=True, disable=not trials) as bar:
         task = bar.add_task(f"{cls.name} on {len(trials)} trials", total=len(trials))
 
@@ -69,13 +74,10 @@ def evaluate(
             bar.update(task, description=f"{cls.name}: {name}")
             bar.advance(task)
 
-        result = broad.evaluate_recordings(
-            make, recs, method=cls.name, params=params.as_dict(), group_order=order,
-            progress=progress,
-        )
+        result = evaluate_all(estimator, recs, group_order=order, progress=progress)
     console.print(broad.format_table(result))
     console.print(
-        f"speed: {result.samples_per_s():,.0f} samples/s (including compilation on first use)"
+        f"speed: {result.samples_per_s:,.0f} samples/s (including compilation on first use)"
     )
     if json_out is not None:
         result.write_json(json_out)
@@ -98,13 +100,20 @@ def tune(
     acc_unit: AccUnitOption = None,
     mag_unit: MagUnitOption = None,
     time_unit: TimeUnitOption = None,
+    workers: WorkersOption = None,
+    scheduler: SchedulerOption = None,
 ) -> None:
-    """Find one parameter set for all trials that minimises the mean total RMSE."""
+    """Find one parameter set for all trials that minimises the mean total RMSE.
+
+    The grid points run on Dask like `margtrack batch`: an embedded local cluster (one
+    worker per CPU; --workers 1: in this process) or --scheduler tcp://HOST:PORT.
+    """
     import itertools
 
     from rich.progress import Progress
 
     from margtrack import io, methods
+    from margtrack.batch.cluster import mapper_of, open_pool
     from margtrack.bench import broad
     from margtrack.bench import tune as tuning
 
@@ -131,9 +140,13 @@ def tune(
             bar.update(task, description=f"{method}: {point}")
             bar.advance(task)
 
-        result = tuning.tune(
-            method, candidates, recordings, fixed=fixed, group_order=order, progress=progress
-        )
+        # a single point is not worth starting workers for
+        with open_pool(1 if n_points == 1 and scheduler is None else workers, scheduler) as pool:
+            bar.update(task, description=f"tuning {method} on {pool.description}")
+            result = tuning.tune(
+                method, candidates, recordings, fixed=fixed, group_order=order,
+                progress=progress, mapper=None if pool.client is None else mapper_of(pool),
+            )
     table = Table(title=f"{result.method}: best {min(top, len(result.results))} of {n_points}")
     table.add_column("parameters")
     for col in ("total", "heading", "inclination"):

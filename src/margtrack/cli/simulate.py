@@ -53,20 +53,22 @@ def demo(
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
 ) -> None:
     """Simulate a noisy MARG recording and compare every method against its truth."""
-    from margtrack import methods, sim
-    from margtrack.bench import broad
+    from margtrack import sim
 
     rec = sim.simulate_motion("random", duration_s=duration_s, rate_hz=100.0, seed=seed)
     console.print(
         f"simulated {rec.duration_s:.0f} s of random motion at 100 Hz with MEMS sensor errors "
         f"(seed {seed})"
     )
+    # imported after the first line: every estimator module (numba) takes a while to load
+    from margtrack import methods
+    from margtrack.bench.runner import evaluate
+
     table = Table(title="RMSE against the simulated truth (deg)")
     for col in ("method", "total", "heading", "inclination"):
         table.add_column(col, justify="left" if col == "method" else "right")
     for name in methods.available():
-        estimator = methods.create(name)
-        errors, _ = broad.evaluate_recording(estimator, rec)
+        errors = evaluate(methods.create(name), rec)
         star = " (default)" if name == methods.DEFAULT_METHOD else ""
         table.add_row(
             name + star,
