@@ -1,17 +1,19 @@
-"""Body model on the x-IMU3 lower-body recording: calibration, joint angles, exports, speed.
+"""Body workflow on the x-IMU3 lower-body walk: margtrack's filter against the devices' own.
 
-Reads ../shared/data/xio_lower_body (7 x-IMU3 sensors: pelvis, left/right upper_leg,
-lower_leg, foot; ~50 Hz; the devices' own orientation estimates in NWU), resamples every
-sensor onto one 50 Hz time base, calibrates the sensor-to-segment offsets on the first still
-second (the subject starts standing in the reference pose, 000 eq. 10) with the heading
-taken from the pelvis sensor (its -z axis points forward: it sits on the sacrum), and
-reports hip and knee angles: ranges of motion and knee flexion peaks per step. Writes a BVH,
-an OpenSim .sto table, a CSV of joint angles and a PNG of stick figures to --out.
+The work itself is ``margtrack body`` (:func:`margtrack.body.process_body`): every sensor
+of ../shared/data/xio_lower_body filtered by a margtrack method, one 50 Hz time base, the
+sensor-to-segment offsets calibrated on the first still second with the heading from the
+pelvis sensor (-z forward: it sits on the sacrum), joint angles and the files (CSV, .sto,
+BVH, PNG) in --out. This script adds what only a benchmark does:
 
-Speed: frames/s of the vectorised body model (eq. 7 + eq. 11 + joint angles) against a
-per-frame loop over scipy Rotation objects doing the same work, in the same run.
+- the same body model on the devices' own orientation estimates (``Quaternion.csv``, NWU),
+  the route this benchmark took before the workflow existed: knee flexion peaks per step,
+  labelled by what the body does, side by side, and their differences;
+- the BVH read back with bvhio (if installed), joint positions against the body model;
+- speed: frames/s of the vectorised body model (eq. 7 + eq. 11 + joint angles) against a
+  per-frame loop over scipy Rotation objects doing the same work, in the same run.
 
-Run: python benchmarks/body_xio.py [--data DIR] [--out DIR]
+Run: python benchmarks/body_xio.py [--data DIR] [--out DIR] [-m METHOD]
 """
 
 from __future__ import annotations
@@ -27,12 +29,9 @@ from scipy.spatial.transform import Rotation
 from margtrack import body
 from margtrack import quaternion as quat
 from margtrack.bench.speed import measure
-from margtrack.body.xio import from_device_frame, read_xio_orientations
+from margtrack.body.xio import read_xio_orientations
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "xio_lower_body"
-RATE_HZ = 50.0
-HEIGHT_M = 1.75  # the subject's height is not given; it scales positions, not angles
-PELVIS_FORWARD_AXIS = (0.0, 0.0, -1.0)
 HIGH_KNEE_DEG = 90.0  # knee peaks above this are the recording's high-knee raises, not steps
 TURN_DEG = 20.0  # pelvis heading change within +-0.5 s of a peak that marks a turning step
 
@@ -51,142 +50,105 @@ def scipy_loop(skeleton: body.Skeleton, offsets: np.ndarray, q_sensor: np.ndarra
     return out
 
 
-def gyro_orientations(folder: Path, names: list[str], t: np.ndarray) -> np.ndarray:
-    """Orientations by gyro integration (bias from the first still second), ENU, on ``t``.
+def device_angles(data: Path, rate_hz: float) -> tuple[np.ndarray, body.JointAngles, np.ndarray]:
+    """Joint angles from the devices' own quaternions (same skeleton, window and heading)."""
+    t, names, q = read_xio_orientations(data, rate_hz, device_frame="NWU", frame="ENU")
+    skeleton = body.Skeleton.from_height(1.75, "lower", "ENU")
+    q = q[:, skeleton.order(names)]
+    window = body.still_window(t, q, duration_s=1.0, max_motion_deg=2.0)
+    cal = body.calibrate(skeleton, q[window], heading="pelvis", forward_axis=(0, 0, -1))
+    pose = body.track(skeleton, cal, q)
+    yaw = np.degrees(np.unwrap(quat.to_euler(pose.q_segment[:, 0])[:, 0]))
+    return t - t[0], body.joint_angles(skeleton, pose.q_segment), yaw
 
-    An estimate independent of the device's filter and of the magnetometer, started from the
-    device's first quaternion: a cross-check of the joint angles over this 18 s recording.
-    """
-    from margtrack.io import read_xio_quaternion, read_xio_sensor
-    from margtrack.methods import create
 
-    out = []
-    for name in names:
-        rec = read_xio_sensor(folder / name)
-        _, q_dev = read_xio_quaternion(folder / name)
-        bias = rec.gyr[rec.t < rec.t[0] + 1.0].mean(axis=0)
-        est = create("gyro")
-        est.reset(q_dev[0])
-        q_nwu = est.run(gyr=rec.gyr - bias, acc=rec.acc, t=rec.t).quat
-        out.append(body.resample_orientations(rec.t, from_device_frame(q_nwu, "NWU", "ENU"), t))
-    return np.stack(out, axis=1)
+def labelled_peaks(t: np.ndarray, knees: dict[str, np.ndarray], yaw: np.ndarray, rate_hz: float
+                   ) -> dict[str, list[tuple[float, float, str]]]:
+    """Knee flexion peaks (> 20 deg, >= 0.5 s apart) as (time s, deg, what the body does)."""
+    half = int(0.5 * rate_hz)
+    out: dict[str, list[tuple[float, float, str]]] = {}
+    for side, flex in knees.items():
+        peaks, _ = find_peaks(flex, height=20.0, distance=half)
+        rows = []
+        for k, i in enumerate(peaks):
+            lo, hi = max(i - half, 0), min(i + half, t.size - 1)
+            near = slice(max(i - int(0.8 * rate_hz), 0), i + int(0.8 * rate_hz))
+            if max(knees["left"][near].max(), knees["right"][near].max()) >= HIGH_KNEE_DEG:
+                label = "high-knee raise" if flex[i] >= HIGH_KNEE_DEG else "stance of a raise"
+            elif abs(yaw[hi] - yaw[lo]) > TURN_DEG:
+                label = "turning"
+            else:
+                label = "first step" if k == 0 else "straight walking"
+            rows.append((float(t[i]), float(flex[i]), label))
+        out[side] = rows
+    return out
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "body_xio")
+    parser.add_argument("-m", "--method", default="default")
     args = parser.parse_args()
-    args.out.mkdir(parents=True, exist_ok=True)
 
-    t, names, q = read_xio_orientations(args.data, RATE_HZ, device_frame="NWU", frame="ENU")
-    skeleton = body.Skeleton.from_height(HEIGHT_M, "lower", "ENU")
-    q = q[:, skeleton.order(names)]
-    window = body.still_window(t, q, duration_s=1.0, max_motion_deg=2.0)
-    cal = body.calibrate(skeleton, q[window], heading="pelvis", forward_axis=PELVIS_FORWARD_AXIS)
-    pose = body.track(skeleton, cal, q)
-    angles = body.joint_angles(skeleton, pose.q_segment)
-    t0 = t - t[0]
+    result = body.process_body(body.read_body(args.data), method=args.method)
+    print("\n".join(result.summary()))
+    written = result.write(args.out, force=True, inputs=[args.data])
+    print(f"wrote {', '.join(p.name for p in written.values())} to {args.out}")
 
-    print(f"x-IMU3 lower body: {len(names)} sensors, {t.size} frames at {RATE_HZ:g} Hz "
-          f"({t0[-1]:.1f} s)")
-    print(f"calibration window {t0[window.start]:.2f}-{t0[window.stop - 1]:.2f} s; subject "
-          f"faced {cal.facing_deg:.1f} deg (compass); largest spread in the window "
-          f"{cal.spread_deg.max():.2f} deg")
-    moving = np.arange(t.size) >= window.stop
-    print("\nranges of motion after the calibration window (deg):")
-    print(f"{'joint':<12} {'component':<18} {'min':>7} {'max':>7} {'range':>7}")
-    for joint in angles.names:
-        if not joint.endswith(("hip", "knee")):
-            continue
-        deg = angles.degrees(joint)[moving]
-        comps = angles.components[angles.names.index(joint)]
-        for k, comp in enumerate(comps):
-            lo, hi = deg[:, k].min(), deg[:, k].max()
-            print(f"{joint:<12} {comp:<18} {lo:7.1f} {hi:7.1f} {hi - lo:7.1f}")
-    print("\nknee flexion peaks (> 20 deg, >= 0.5 s apart), labelled by what the body does:")
-    knees = {side: angles.degrees(f"{side}_knee")[:, 0] for side in ("left", "right")}
-    yaw = np.degrees(np.unwrap(quat.to_euler(pose.q_segment[:, 0])[:, 0]))
-    half = int(0.5 * RATE_HZ)
-    straight: dict[str, list[float]] = {"left": [], "right": []}
-    for side, flex in knees.items():
-        peaks, _ = find_peaks(flex, height=20.0, distance=half)
-        rows = []
-        for k, i in enumerate(peaks):
-            lo, hi = max(i - half, 0), min(i + half, t.size - 1)
-            near = slice(max(i - int(0.8 * RATE_HZ), 0), i + int(0.8 * RATE_HZ))
-            if max(knees["left"][near].max(), knees["right"][near].max()) >= HIGH_KNEE_DEG:
-                label = "high-knee raise" if flex[i] >= HIGH_KNEE_DEG else "stance of a raise"
-            elif abs(yaw[hi] - yaw[lo]) > TURN_DEG:
-                label = "turning"
-            elif k == 0:
-                label = "first step"
-            else:
-                label = "straight walking"
-                straight[side].append(float(flex[i]))
-            rows.append(f"{flex[i]:.0f} at {t0[i]:.1f} s ({label})")
-        print(f"  {side:5s} " + "; ".join(rows))
-    for side, values in straight.items():
-        print(f"  {side:5s} straight-walking peaks: mean {np.mean(values):.1f} deg, "
-              f"range {min(values):.1f}-{max(values):.1f} deg ({len(values)} steps)")
-    q_gyro = gyro_orientations(args.data, names, t)[:, skeleton.order(names)]
-    cal_gyro = body.calibrate(skeleton, q_gyro[window], heading="pelvis",
-                              forward_axis=PELVIS_FORWARD_AXIS)
-    gyro_angles = body.joint_angles(skeleton, body.track(skeleton, cal_gyro, q_gyro).q_segment)
-    diff = {s: np.abs(gyro_angles.degrees(f"{s}_knee")[:, 0] - knees[s]) for s in knees}
-    print("  cross-check, gyro integration instead of the device quaternions: knee flexion "
-          f"differs by median {np.median(np.concatenate(list(diff.values()))):.1f} deg, "
-          f"max {max(d.max() for d in diff.values()):.1f} deg")
-    hip = np.concatenate([angles.degrees(f"{s}_hip")[moving, 0] for s in ("left", "right")])
-    print(f"  hip flexion over the recording: {hip.min():.1f} to {hip.max():.1f} deg")
+    rate = result.rate_hz
+    t_dev, dev, yaw = device_angles(args.data, rate)
+    knees = {s: result.angles.degrees(f"{s}_knee")[:, 0] for s in ("left", "right")}
+    dev_knees = {s: dev.degrees(f"{s}_knee")[:, 0] for s in ("left", "right")}
+    ours = labelled_peaks(result.t_rel_s, knees, yaw[: result.t_s.size], rate)
+    theirs = labelled_peaks(t_dev, dev_knees, yaw, rate)
+    print(f"\nknee flexion peaks (deg): margtrack {result.method} vs the devices' quaternions")
+    diffs = []
+    for side in ("left", "right"):
+        for (s, v, label), (s2, v2, _) in zip(ours[side], theirs[side], strict=False):
+            diffs.append(v - v2)
+            print(f"  {side:5s} {s:5.1f} s  {v:6.1f}  device {v2:6.1f} at {s2:4.1f} s  "
+                  f"({label})")
+        straight = [v for _, v, label in ours[side] if label == "straight walking"]
+        dev_straight = [v for _, v, label in theirs[side] if label == "straight walking"]
+        print(f"  {side:5s} straight walking: mean {np.mean(straight):.1f} deg "
+              f"(device {np.mean(dev_straight):.1f} deg, {len(straight)} steps)")
+    n = min(t_dev.size, result.t_s.size)
+    gap = np.concatenate([knees[s][:n] - dev_knees[s][:n] for s in knees])
+    print(f"  peak differences: max {np.max(np.abs(diffs)):.1f} deg; knee flexion over the "
+          f"whole walk differs by median {np.median(np.abs(gap)):.1f} deg, RMS "
+          f"{np.sqrt(np.mean(gap**2)):.1f} deg")
 
-    body.write_bvh(args.out / "xio_lower_body.bvh", skeleton, pose.q_segment, 1.0 / RATE_HZ)
-    body.write_sto(args.out / "xio_lower_body_orientations.sto", skeleton, t0, pose.q_segment)
-    body.write_joint_angles_csv(args.out / "xio_lower_body_angles.csv", t0, angles)
-    left = angles.degrees("left_knee")[:, 0]
-    frames = [int(window.start)] + [int(i) for i in np.argsort(-left)[:1]]
-    steps, _ = find_peaks(left, height=20.0, distance=int(0.5 * RATE_HZ))
-    steps = steps[left[steps] < HIGH_KNEE_DEG]
-    if steps.size:
-        s = int(steps[0])
-        frames += [s - int(0.3 * RATE_HZ), s, s + int(0.3 * RATE_HZ)]
-    frames = sorted(set(frames))
-    body.plot_stick_figures(
-        args.out / "xio_lower_body_sticks.png", skeleton, pose.joints_m, pose.ends_m, frames,
-        labels=[f"{t0[i]:.2f} s" for i in frames], heading_quat=cal.heading_quat,
-        title="x-IMU3 lower body (device quaternions, pelvis heading)",
-    )
-    print(f"\nwrote BVH, .sto, CSV and PNG to {args.out}")
     try:
         import bvhio
     except ImportError:
         print("  (bvhio not installed: BVH read-back check skipped)")
     else:
-        hierarchy = bvhio.readAsHierarchy(str(args.out / "xio_lower_body.bvh"))
+        hierarchy = bvhio.readAsHierarchy(str(written["bvh"]))
         nodes = {j.Name: j for j, _, _ in hierarchy.layout()}
         m = body.bvh_axes("ENU")
         worst = 0.0
-        for f in range(0, t.size, 10):
+        frames = range(0, result.t_s.size, 10)
+        for f in frames:
             hierarchy.loadPose(f, recursive=True)
-            for i, name in enumerate(skeleton.names):
+            for i, name in enumerate(result.skeleton.names):
                 p = m.T @ np.array(nodes[name].PositionWorld, dtype=float) / 100.0
-                worst = max(worst, float(np.abs(p - pose.joints_m[f, i]).max()))
-        print(f"  BVH read back with bvhio: joint positions within {worst:.1e} m "
-              f"of the body model ({len(range(0, t.size, 10))} frames)")
+                worst = max(worst, float(np.abs(p - result.pose.joints_m[f, i]).max()))
+        print(f"  BVH read back with bvhio: joint positions within {worst:.1e} m of the body "
+              f"model ({len(frames)} frames)")
 
-    n_rep = max(1, 100_000 // t.size)
-    big = np.tile(q, (n_rep, 1, 1))
+    skeleton, cal, q = result.skeleton, result.calibration, result.q_sensor
+    big = np.tile(q, (max(1, 100_000 // q.shape[0]), 1, 1))
 
     def vectorised() -> object:
-        p = body.track(skeleton, cal, big)
-        return body.joint_angles(skeleton, p.q_segment)
+        return body.joint_angles(skeleton, body.track(skeleton, cal, big).q_segment)
 
     small = q[:2000]
     fast = measure("margtrack.body (numpy, vectorised)", vectorised, big.shape[0])
-    slow = measure("per-frame loop, scipy Rotation", lambda: scipy_loop(skeleton, cal.offsets,
-                   small), small.shape[0], repeats=1)
-    ref = scipy_loop(skeleton, cal.offsets, small)
-    diff = np.abs(body.track(skeleton, cal, small).joints_m - ref).max()
+    slow = measure("per-frame loop, scipy Rotation",
+                   lambda: scipy_loop(skeleton, cal.offsets, small), small.shape[0], repeats=1)
+    diff = np.abs(body.track(skeleton, cal, small).joints_m
+                  - scipy_loop(skeleton, cal.offsets, small)).max()
     print(f"\nspeed ({len(skeleton)} segments per frame; frames/s):")
     for th in (fast, slow):
         print(f"  {th.label:<38} {th.samples_per_s:12.0f}  ({th.us_per_sample:.2f} us/frame)")

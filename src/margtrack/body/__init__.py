@@ -9,7 +9,12 @@
   ``q_segment = q_sensor ⊗ q_offset`` (eq. 7) and joint positions (eq. 11).
 - :func:`joint_angles` (:mod:`.joints`): hip, knee, ankle, shoulder, elbow, X-Y-Z Cardan.
 - Export: :func:`write_bvh`, :func:`write_sto` (OpenSim quaternion table),
-  :func:`write_joint_angles_csv`; :func:`plot_stick_figures` draws frames with matplotlib.
+  :func:`write_joint_angles_csv`; :func:`plot_stick_figures` draws frames with matplotlib,
+  :func:`plot_joint_angles` the angle curves.
+- The workflow (:mod:`.workflow`, ``margtrack body``): :func:`read_body` reads a
+  multi-sensor recording, :func:`read_body_map` a sensor -> segment map, and
+  :func:`process_body` filters every sensor, calibrates and returns a :class:`BodyResult`
+  (joint angles, pose, summary, ``write(outdir)``).
 
 Arrays are frames first, then segments in the skeleton's order: (N, S, 4) quaternions,
 (N, S, 3) positions in metres, in the skeleton's earth frame (ENU default, or NED).
@@ -20,6 +25,7 @@ from __future__ import annotations
 from margtrack.body.export_bvh import bvh_axes, write_bvh
 from margtrack.body.export_csv import read_joint_angles_csv, write_joint_angles_csv
 from margtrack.body.export_sto import OPENSENSE_NAMES, opensim_axes, read_sto, write_sto
+from margtrack.body.inputs import read_body
 from margtrack.body.joints import JOINTS, JointAngles, cardan_xyz, joint_angles
 from margtrack.body.kinematics import (
     BodyPose,
@@ -28,8 +34,9 @@ from margtrack.body.kinematics import (
     segment_orientations,
     track,
 )
+from margtrack.body.mapping import BodyMap, read_body_map
 from margtrack.body.offsets import Calibration, average_quaternions, calibrate, still_window
-from margtrack.body.plot import plot_stick_figures
+from margtrack.body.plot import plot_joint_angles, plot_stick_figures
 from margtrack.body.skeleton import (
     ALIASES,
     PRESETS,
@@ -40,6 +47,7 @@ from margtrack.body.skeleton import (
     body_axes,
     dimensions_from_height,
 )
+from margtrack.body.workflow import BodyResult, SensorReport, process_body
 
 __all__ = [
     "ALIASES",
@@ -48,10 +56,13 @@ __all__ = [
     "PRESETS",
     "SEGMENT_NAMES",
     "WINTER_FRACTIONS",
+    "BodyMap",
     "BodyPose",
+    "BodyResult",
     "Calibration",
     "JointAngles",
     "Segment",
+    "SensorReport",
     "Skeleton",
     "average_quaternions",
     "body_axes",
@@ -61,8 +72,12 @@ __all__ = [
     "dimensions_from_height",
     "joint_angles",
     "opensim_axes",
+    "plot_joint_angles",
     "plot_stick_figures",
     "positions",
+    "process_body",
+    "read_body",
+    "read_body_map",
     "read_joint_angles_csv",
     "read_sto",
     "resample_orientations",

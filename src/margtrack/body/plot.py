@@ -1,4 +1,4 @@
-"""Stick-figure drawings of body-model frames (matplotlib, imported lazily)."""
+"""Drawings of body-model results: stick figures and joint-angle curves (matplotlib, lazily)."""
 
 from __future__ import annotations
 
@@ -9,11 +9,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from margtrack import quaternion as quat
+from margtrack.body.joints import JointAngles
 from margtrack.body.skeleton import Skeleton, body_axes
 
 Array = NDArray[np.float64]
 
-__all__ = ["bones", "plot_stick_figures"]
+__all__ = ["bones", "plot_joint_angles", "plot_stick_figures"]
 
 
 def bones(skeleton: Skeleton, joints_m: Array, ends_m: Array) -> Array:
@@ -95,4 +96,60 @@ def plot_stick_figures(
     if title:
         fig.suptitle(title)
     fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_joint_angles(
+    path: str | Path,
+    t_s: ArrayLike,
+    angles: JointAngles,
+    window_s: tuple[float, float] | None = None,
+    title: str = "",
+) -> None:
+    """Save a PNG of joint-angle curves: one row per joint kind, one column per component.
+
+    Parameters
+    ----------
+    path : the PNG to write (written as PNG whatever its extension).
+    t_s : (N,) s, the time axis.
+    angles : :class:`JointAngles` over N frames; left joints in blue, right in red.
+    window_s : (start, end) s of the calibration, shaded grey; None for no shading.
+    title : figure title.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.asarray(t_s, dtype=np.float64)
+    a = np.asarray(angles.angles_rad)
+    if a.ndim != 3 or t.shape != (a.shape[0],) or not angles.names:
+        raise ValueError(f"need angles over N frames (N, J, 3) with J >= 1 and t_s (N,); "
+                         f"got {a.shape} and {t.shape}")
+    kinds = list(dict.fromkeys(n.split("_", 1)[1] for n in angles.names))
+    height_in = 0.9 + 2.2 * len(kinds)
+    fig, axes = plt.subplots(len(kinds), 3, figsize=(12, height_in), sharex=True,
+                             squeeze=False)  # fixed margins: a layout engine costs seconds
+    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.55 / height_in,
+                        top=1.0 - 0.6 / height_in, wspace=0.18, hspace=0.35)
+    colours = {"left": "tab:blue", "right": "tab:red"}
+    for j, (name, comps) in enumerate(zip(angles.names, angles.components, strict=True)):
+        side, kind = name.split("_", 1)
+        row = kinds.index(kind)
+        for k, comp in enumerate(comps):
+            ax = axes[row, k]
+            ax.plot(t, np.degrees(a[:, j, k]), color=colours.get(side, "k"), lw=1, label=side)
+            ax.set_title(f"{kind} {comp.replace('_', ' ')}", fontsize=9)
+    for ax in axes.flat:
+        if window_s is not None:
+            ax.axvspan(window_s[0], window_s[1], color="0.85", zorder=0)
+        ax.grid(alpha=0.3)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("deg")
+    for ax in axes[-1]:
+        ax.set_xlabel("t (s)")
+    axes[0, 0].legend(fontsize=8, loc="upper right")
+    if title:
+        fig.suptitle(title)
+    fig.savefig(path, dpi=100, format="png")
     plt.close(fig)

@@ -382,3 +382,61 @@ class Skeleton:
         else:
             root_lateral = np.zeros(3)
         return cls(tuple(segments), frame, root_height * upward + root_lateral)
+
+    @classmethod
+    def from_segments(
+        cls,
+        segments: Sequence[str],
+        height_m: float = 1.75,
+        frame: str = "ENU",
+        dimensions_m: Mapping[str, float] | None = None,
+    ) -> Skeleton:
+        """Skeleton of any set of segments (the sensors a recording has), scaled from height.
+
+        Parameters
+        ----------
+        segments : segment names or aliases, any order; each chain must be complete up to
+            one root: every segment's parent is in the set, except for the one root (the
+            first of the set in :data:`SEGMENT_NAMES` order). A leg without its thigh, or
+            two separate chains (two arms without the trunk), raise ``ValueError`` naming
+            the segments that would be needed.
+        height_m, frame, dimensions_m : as :meth:`from_height`.
+
+        Returns
+        -------
+        The skeleton with the segments in tree order; the geometry of :meth:`from_height`'s
+        ``"full"`` preset, with the root placed where that preset puts its joint (equal to
+        the presets ``lower``, ``left_arm``... for their segment sets).
+        """
+        keys = [canonical_name(s) for s in segments]
+        repeated = sorted({k for k in keys if keys.count(k) > 1})
+        if repeated:
+            raise ValueError(f"segments must be distinct; repeated: {', '.join(repeated)}")
+        if not keys:
+            raise ValueError("segments is empty; name at least one segment")
+        names = tuple(n for n in SEGMENT_NAMES if n in keys)
+        orphans = [n for n in names[1:] if _PARENT[n] not in names]
+        if orphans:
+            needed = []
+            for n in orphans:
+                chain, p = [], _PARENT[n]
+                while p is not None and p not in names:
+                    chain.append(p)
+                    p = _PARENT[p]
+                needed.append(f"{n} needs {' and '.join(chain)}")
+            raise ValueError(
+                f"the segments {', '.join(names)} do not form one chain from {names[0]}: "
+                f"{'; '.join(needed)} (a sensor on each segment between it and {names[0]}); "
+                "add those sensors or leave the disconnected ones out"
+            )
+        full = cls.from_height(height_m, "full", frame, dimensions_m)
+        joints = {full.names[0]: full.root_position_m}
+        for i, seg in enumerate(full.segments[1:], start=1):
+            joints[seg.name] = joints[full.names[full.parents[i]]] + seg.offset_m
+        picked = []
+        for seg in full.segments:
+            if seg.name in names:
+                root = seg.name == names[0]
+                picked.append(Segment(seg.name, None if root else seg.parent,
+                                      np.zeros(3) if root else seg.offset_m, seg.end_m))
+        return cls(tuple(picked), full.frame, joints[names[0]])

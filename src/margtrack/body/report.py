@@ -1,0 +1,65 @@
+"""The printed summary of a body workflow run (plain text, one line per item).
+
+Calibration spread per sensor (largest angle of a pose-window sample from the sensor's
+mean, deg: how still the pose was held), the sensors' rates, magnetometers and flags, the
+range of motion of every joint angle after the calibration window, knee flexion peaks, and
+the notes (warnings) of :func:`margtrack.body.workflow.process_body`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from margtrack.body.workflow import BodyResult
+
+__all__ = ["summary_lines"]
+
+
+def _axis_name(axis: np.ndarray) -> str:
+    k = int(np.argmax(np.abs(axis)))
+    if np.isclose(abs(axis[k]), 1.0):
+        return f"{'-' if axis[k] < 0 else '+'}{'xyz'[k]}"
+    return ",".join(f"{v:.3g}" for v in axis)
+
+
+def summary_lines(result: BodyResult) -> list[str]:
+    """The summary of ``result`` as lines of text (module docstring)."""
+    t = result.t_rel_s
+    cal = result.calibration
+    w = result.window
+    lines = [
+        f"body: {len(result.sensors)} sensors, {t.size} frames at {result.rate_hz:g} Hz "
+        f"({t[-1]:.1f} s), method {result.method}, earth frame {result.skeleton.frame}",
+    ]
+    if cal.heading == "pelvis" and result.forward_axis is not None:
+        facing = (f"heading from the pelvis sensor's {_axis_name(result.forward_axis)} axis: "
+                  f"the subject faced {cal.facing_deg:.1f} deg (compass)")
+    else:
+        facing = "heading: the subject faced magnetic north"
+    lines.append(f"calibration on {t[w.start]:.2f}-{t[w.stop - 1]:.2f} s "
+                 f"({w.stop - w.start} frames); {facing}")
+    lines.append(f"{'sensor':<18} {'segment':<16} {'rate Hz':>7} {'spread deg':>10} "
+                 f"{'mag unusable':>12}  flags")
+    for r, spread in zip(result.sensors, cal.spread_deg, strict=True):
+        flags = ", ".join(f"{k} {v}" for k, v in r.flag_counts.items()) or "none"
+        if r.gap_frames:
+            flags += f"; {r.gap_frames} frames across gaps"
+        lines.append(f"{r.sensor:<18} {r.segment:<16} {r.rate_hz:7.1f} {spread:10.2f} "
+                     f"{100 * r.mag_unusable_share:11.0f}%  {flags}")
+    lines.append("range of motion after the calibration (deg):")
+    lines.append(f"{'joint':<16} {'component':<18} {'min':>7} {'max':>7} {'range':>7}")
+    for joint, comp, lo, hi in result.range_of_motion():
+        lines.append(f"{joint:<16} {comp:<18} {lo:7.1f} {hi:7.1f} {hi - lo:7.1f}")
+    knees = [j for j in result.angles.names if j.endswith("_knee")]
+    if knees:
+        lines.append("knee flexion peaks (> 20 deg, >= 0.5 s apart):")
+        for joint in knees:
+            times, values = result.peaks(joint)
+            found = "; ".join(f"{v:.0f} at {s:.1f} s" for s, v in zip(times, values,
+                                                                      strict=True))
+            lines.append(f"  {joint:<11} {found or 'none'}")
+    lines += [f"note: {n}" for n in result.notes]
+    return lines

@@ -1,0 +1,386 @@
+"""From a multi-sensor recording to joint angles: filter, common time base, calibration, model.
+
+:func:`process_body` takes one :class:`~margtrack.recording.Recording` per sensor (e.g. from
+:func:`margtrack.body.inputs.read_body`) and
+
+1. matches sensors to segments (names or a map, :mod:`margtrack.body.mapping`) and builds
+   the skeleton of those segments (:meth:`Skeleton.from_segments`);
+2. estimates every sensor's orientation with a margtrack method (``-m``/``-p`` as in
+   ``margtrack run``) on its own timestamps, in the skeleton's earth frame;
+3. brings the orientations onto one time base by slerp: the span all sensors cover, at
+   ``rate_hz`` (default: the slowest sensor's rate, rounded to a whole Hz when within 1 %);
+   a frame interpolated across a sensor gap longer than ``max_gap_s`` gets that sensor's
+   ``GAP`` flag, and every frame carries the flags of the sensor samples around it;
+4. calibrates the sensor-to-segment offsets on the reference pose (000, eq. 10): a given
+   window, or the first still second, heading from north or from the pelvis sensor;
+5. computes the body pose (000, eqs. 7, 11) and the joint angles (:mod:`.joints`).
+
+The result, :class:`BodyResult`, prints a summary (calibration spread per sensor, range of
+motion per joint, knee flexion peaks) and writes its files (:mod:`margtrack.body.outputs`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from margtrack.body.joints import JointAngles, joint_angles
+from margtrack.body.kinematics import BodyPose, resample_orientations, track
+from margtrack.body.mapping import BodyMap, assign_segments, parse_axis
+from margtrack.body.offsets import Calibration, Heading, calibrate, still_window
+from margtrack.body.report import summary_lines
+from margtrack.body.skeleton import Skeleton
+from margtrack.recording import Recording
+from margtrack.units import UnitError
+
+Array = NDArray[np.float64]
+
+__all__ = ["DEFAULT_FORWARD_AXIS", "BodyResult", "SensorReport", "process_body"]
+
+#: The pelvis sensor's forward axis when none is given: ``-z``, an x-IMU3 on the sacrum
+#: with its z axis out of the back (../shared/data/xio_lower_body).
+DEFAULT_FORWARD_AXIS = (0.0, 0.0, -1.0)
+#: Share of samples with an unusable field above which a magnetometer counts as dead.
+DEAD_MAG_SHARE = 0.5
+
+
+@dataclass(frozen=True)
+class SensorReport:
+    """What happened to one sensor: its segment, rate, span, flags and magnetometer.
+
+    ``span_s`` is on the recording's own clock; ``flag_counts`` counts the estimator's flags
+    over the sensor's own samples; ``mag_unusable_share`` is the share of samples whose field
+    was absent, zero, clipped or stuck (``MAG_IGNORED``); ``gap_frames`` counts the common
+    frames interpolated across a gap longer than ``max_gap_s``.
+    """
+
+    sensor: str
+    segment: str
+    n_samples: int
+    rate_hz: float
+    span_s: tuple[float, float]
+    flag_counts: Mapping[str, int]
+    mag_unusable_share: float
+    gap_frames: int
+
+    @property
+    def mag_dead(self) -> bool:
+        """True when the magnetometer is absent or unusable for most samples."""
+        return self.mag_unusable_share > DEAD_MAG_SHARE
+
+
+@dataclass(frozen=True, eq=False)
+class BodyResult:
+    """Joint angles and body pose of a multi-sensor recording (module docstring).
+
+    Attributes
+    ----------
+    skeleton : the body model (segments of the sensors, skeleton order, earth frame).
+    calibration : sensor-to-segment offsets, heading, spread per sensor.
+    t_s : (N,) s, the common time base on the sensors' clock; ``t_rel_s`` starts at 0.
+    q_sensor : (N, S, 4) sensor to earth, skeleton order.
+    pose : segment orientations and joint positions (m).
+    angles : joint angles (rad).
+    window : the calibration frames (``slice``).
+    sensors : one :class:`SensorReport` per segment, skeleton order.
+    frame_flags : (N, S) uint16, per common frame and sensor (module docstring, step 3).
+    method, params : the estimation method and its parameters.
+    forward_axis : the pelvis sensor's forward axis (heading ``"pelvis"``), else None.
+    notes : warnings for people (sensors left out, cropped spans, dead magnetometers...).
+    """
+
+    skeleton: Skeleton
+    calibration: Calibration
+    t_s: Array
+    q_sensor: Array
+    pose: BodyPose
+    angles: JointAngles
+    window: slice
+    sensors: tuple[SensorReport, ...]
+    frame_flags: NDArray[np.uint16]
+    method: str
+    params: Mapping[str, Any]
+    forward_axis: Array | None
+    notes: tuple[str, ...]
+
+    @property
+    def t_rel_s(self) -> Array:
+        """(N,) s from the first common frame (the time column of every output)."""
+        return self.t_s - self.t_s[0]
+
+    @property
+    def rate_hz(self) -> float:
+        """Frame rate of the common time base, Hz."""
+        return float(1.0 / np.median(np.diff(self.t_s)))
+
+    def range_of_motion(self) -> list[tuple[str, str, float, float]]:
+        """``(joint, component, min_deg, max_deg)`` over the frames after the calibration."""
+        after = slice(self.window.stop, None) if self.window.stop < self.t_s.size else slice(None)
+        rows = []
+        for j, (joint, comps) in enumerate(zip(self.angles.names, self.angles.components,
+                                               strict=True)):
+            deg = np.degrees(self.angles.angles_rad[after, j, :])
+            rows += [(joint, c, float(deg[:, k].min()), float(deg[:, k].max()))
+                     for k, c in enumerate(comps)]
+        return rows
+
+    def peaks(self, joint: str, component: int = 0, height_deg: float = 20.0,
+              min_separation_s: float = 0.5) -> tuple[Array, Array]:
+        """Times (s from the start) and values (deg) of the peaks of one angle.
+
+        Local maxima above ``height_deg`` at least ``min_separation_s`` apart
+        (``scipy.signal.find_peaks``), e.g. knee flexion in swing.
+        """
+        from scipy.signal import find_peaks
+
+        deg = self.angles.degrees(joint)[:, component]
+        idx, _ = find_peaks(deg, height=height_deg,
+                            distance=max(1, round(min_separation_s * self.rate_hz)))
+        return self.t_rel_s[idx], deg[idx]
+
+    def summary(self) -> list[str]:
+        """The printed summary, one line per item (:func:`margtrack.body.report.summary_lines`)."""
+        return summary_lines(self)
+
+    def write(self, outdir: str | Path, force: bool = False,
+              inputs: Iterable[str | Path] = ()) -> dict[str, Path]:
+        """Write the outputs into ``outdir`` (:func:`margtrack.body.outputs.write_outputs`)."""
+        from margtrack.body.outputs import write_outputs
+
+        return write_outputs(self, outdir, force=force, inputs=inputs)
+
+
+def _common_rate(recs: list[Recording]) -> float:
+    slowest = min(r.rate_hz for r in recs)
+    whole = float(round(slowest))
+    return whole if whole > 0 and abs(whole - slowest) <= 0.01 * slowest else slowest
+
+
+def _time_base(recs: dict[str, Recording], rate_hz: float | None) -> tuple[Array, list[str]]:
+    """Common timestamps over the span every sensor covers, and notes about cropping."""
+    short = [n for n, r in recs.items() if r.n_samples < 2]
+    if short:
+        raise ValueError(f"sensor {short[0]} has {recs[short[0]].n_samples} sample(s); "
+                         "every sensor needs at least 2")
+    start = max(r.t[0] for r in recs.values())
+    stop = min(r.t[-1] for r in recs.values())
+    rate = _common_rate(list(recs.values())) if rate_hz is None else float(rate_hz)
+    if not (np.isfinite(rate) and rate > 0):
+        raise ValueError(f"rate_hz must be a finite number > 0, got {rate_hz}")
+    if stop - start < 2.0 / rate:
+        spans = "; ".join(f"{n} {r.t[0]:.3f}-{r.t[-1]:.3f} s" for n, r in recs.items())
+        raise ValueError(
+            f"the sensors share no common time span ({spans}); their clocks are not "
+            "synchronised: if they started together, re-time each from its first sample "
+            "(align_start=True, --align-start), else synchronise the clocks first"
+        )
+    t = start + np.arange(int(np.floor((stop - start) * rate + 1e-9)) + 1) / rate
+    notes = []
+    lost = {n: (start - r.t[0]) + (r.t[-1] - stop) for n, r in recs.items()}
+    if max(lost.values()) > 0.5:
+        first = max(recs, key=lambda n: recs[n].t[0])
+        last = min(recs, key=lambda n: recs[n].t[-1])
+        notes.append(
+            f"the span all sensors cover is set by {first} (start) and {last} (end); left out: "
+            + ", ".join(f"{n} {s:.2f} s" for n, s in lost.items() if s > 0.5))
+    rates = [r.rate_hz for r in recs.values()]
+    if max(rates) > 1.1 * min(rates):
+        notes.append(f"sensor rates {min(rates):.1f}-{max(rates):.1f} Hz merged onto "
+                     f"{rate:g} Hz")
+    return t, notes
+
+
+def _frame_flags(rec_t: Array, flags: NDArray[np.uint16] | None, t: Array,
+                 max_gap_s: float) -> NDArray[np.uint16]:
+    """Flags of the two samples around each common frame, plus GAP across a long gap."""
+    from margtrack.estimator.flags import Flag
+
+    i = np.clip(np.searchsorted(rec_t, t, side="right") - 1, 0, rec_t.size - 2)
+    out = np.zeros(t.size, dtype=np.uint16)
+    if flags is not None:
+        out |= flags[i] | flags[i + 1]
+    gap = (rec_t[i + 1] - rec_t[i]) > max_gap_s
+    out[gap] |= np.uint16(Flag.GAP)
+    return out
+
+
+def _pose_window(t_rel: Array, q: Array, pose_window: tuple[float, float] | None,
+                 still_s: float, max_motion_deg: float) -> slice:
+    if pose_window is None:
+        try:
+            return still_window(t_rel, q, still_s, max_motion_deg)
+        except ValueError:
+            raise ValueError(
+                f"no still {still_s:g} s found for the reference pose (every sensor within "
+                f"{max_motion_deg:g} deg); give the time of the pose with --pose-window "
+                "START,END (s from the start; pose_window=(start, end))"
+            ) from None
+    try:
+        start, end = (float(v) for v in pose_window)
+    except (TypeError, ValueError):
+        raise ValueError(f"pose_window must be two numbers (start, end) in s, got "
+                         f"{pose_window!r}") from None
+    if not (np.isfinite(start) and np.isfinite(end) and 0 <= start < end):
+        raise ValueError(f"pose window {start:g}-{end:g} s: need 0 <= START < END (s from "
+                         "the start of the common time base)")
+    idx = np.flatnonzero((t_rel >= start) & (t_rel <= end))
+    if idx.size == 0:
+        raise ValueError(f"pose window {start:g}-{end:g} s holds no frame; the recording "
+                         f"spans 0-{t_rel[-1]:.2f} s (s from the start)")
+    return slice(int(idx[0]), int(idx[-1]) + 1)
+
+
+def process_body(
+    recordings: Mapping[str, Recording],
+    mapping: BodyMap | Mapping[str, str] | None = None,
+    method: str = "default",
+    params: Mapping[str, Any] | Iterable[str] = (),
+    pose_window: tuple[float, float] | None = None,
+    heading: Heading = "pelvis",
+    *,
+    forward_axis: ArrayLike | str | None = None,
+    rate_hz: float | None = None,
+    height_m: float | None = None,
+    frame: str = "ENU",
+    align_start: bool = False,
+    still_s: float = 1.0,
+    max_motion_deg: float = 2.0,
+    max_spread_deg: float = 5.0,
+    max_gap_s: float = 0.1,
+    notes: Iterable[str] = (),
+) -> BodyResult:
+    """Joint angles of a multi-sensor recording (module docstring, steps 1-5).
+
+    Parameters
+    ----------
+    recordings : sensor name -> Recording (SI units; each on its own clock and rate).
+    mapping : sensor -> segment (a :class:`BodyMap` or a dict), or None when the sensor
+        names are segment names.
+    method, params : estimation method and its parameters (``margtrack methods``).
+    pose_window : (start, end) s from the start of the common time base, the reference
+        pose (standing, facing the heading reference); None: the first still ``still_s``.
+    heading : ``"pelvis"`` (the subject faces the pelvis sensor's ``forward_axis``) or
+        ``"north"`` (the subject faces magnetic north; every magnetometer must work).
+    forward_axis : the pelvis sensor's forward axis (``"-z"`` or a 3-vector); default the
+        map's, else :data:`DEFAULT_FORWARD_AXIS`.
+    rate_hz : rate of the common time base, Hz (default in the module docstring).
+    height_m : body height, m (default the map's, else 1.75); positions only.
+    frame : earth frame, ``"ENU"`` or ``"NED"``.
+    align_start : re-time every sensor from its first sample (sensors started together on
+        unsynchronised clocks).
+    still_s, max_motion_deg : the still window searched for without ``pose_window``.
+    max_spread_deg : largest motion of a sensor in the pose window, deg.
+    max_gap_s : sensor gaps longer than this flag the interpolated frames ``GAP``, s.
+    notes : notes of the reading to keep with the result (files left unread...).
+    """
+    from margtrack import methods
+    from margtrack.estimator.flags import Flag, count_flags
+
+    if not recordings:
+        raise ValueError("no sensors: the recording holds no sensor data")
+    if heading not in ("north", "pelvis"):
+        raise ValueError(f"heading must be 'pelvis' or 'north', got {heading!r}")
+    if heading == "north" and forward_axis is not None:
+        raise ValueError("forward_axis (--forward-axis) gives the heading from the pelvis "
+                         "sensor; leave it out with heading 'north', or use heading 'pelvis'")
+    body_map = mapping if isinstance(mapping, BodyMap) or mapping is None else BodyMap(mapping)
+    pairs, left_out = assign_segments(list(recordings), body_map)
+    skeleton = Skeleton.from_segments(
+        list(pairs.values()),
+        height_m if height_m is not None else (body_map.height_m if body_map and
+                                               body_map.height_m else 1.75),
+        frame,
+    )
+    if len(skeleton) < 2 or not joint_angles(skeleton, np.tile([1.0, 0, 0, 0],
+                                                              (len(skeleton), 1))).names:
+        raise ValueError(f"the sensors' segments ({', '.join(skeleton.names)}) form no joint "
+                         "(hip, knee, ankle, shoulder, elbow); map the sensors to two "
+                         "neighbouring segments at least")
+    by_segment = {seg: s for s, seg in pairs.items()}
+    sensors = [by_segment[n] for n in skeleton.names]
+    recs = {s: recordings[s] for s in sensors}
+    if align_start:
+        recs = {s: replace(r, t=r.t - r.t[0]) for s, r in recs.items()}
+    t, span_notes = _time_base(recs, rate_hz)
+    notes = [*notes, *(f"{s}: not in the map, left out" for s in left_out), *span_notes]
+    param_values = dict(params) if isinstance(params, Mapping) else dict(
+        methods.parse_params_items(params))
+    methods.create(method, param_values)  # an unknown method or parameter fails here
+    q_list, flag_cols, reports = [], [], []
+    used_params: Mapping[str, Any] = {}
+    method_name = method
+    for sensor, segment in zip(sensors, skeleton.names, strict=True):
+        rec = recs[sensor]
+        try:
+            est = methods.create(method, param_values).run(rec).in_frame(frame)
+        except UnitError as exc:
+            raise UnitError(f"sensor {sensor}: {exc}", signal=exc.signal,
+                            suspected=exc.suspected) from None
+        except ValueError as exc:
+            raise ValueError(f"sensor {sensor}: {exc}") from None
+        used_params, method_name = est.params, est.method
+        q_list.append(resample_orientations(rec.t, est.quat, t))
+        flag_cols.append(_frame_flags(rec.t, est.flags, t, max_gap_s))
+        flags = est.flags if est.flags is not None else np.zeros(rec.n_samples, np.uint16)
+        unusable = 1.0 if rec.mag is None else float(
+            np.mean((flags & int(Flag.MAG_IGNORED)) != 0))
+        reports.append(SensorReport(
+            sensor, segment, rec.n_samples, rec.rate_hz, (float(rec.t[0]), float(rec.t[-1])),
+            count_flags(flags), unusable,
+            int(np.count_nonzero(flag_cols[-1] & int(Flag.GAP)))))
+    q = np.stack(q_list, axis=1)
+    dead = [r.sensor for r in reports if r.mag_dead]
+    if dead and heading == "north":
+        raise ValueError(
+            f"heading 'north' needs every magnetometer, but {', '.join(dead)} has none that "
+            "works (absent, zero, clipped or stuck for most samples: flag MAG_IGNORED); use "
+            "the pelvis heading (--heading pelvis)"
+        )
+    for r in reports:
+        if r.mag_dead:
+            notes.append(
+                f"{r.sensor}: magnetometer unusable for {100 * r.mag_unusable_share:.0f} % of "
+                "samples (MAG_IGNORED); its heading is the gyroscope's, so the angles of its "
+                "joints mix flexion and abduction by that sensor's heading error")
+    axis = None
+    if heading == "pelvis":
+        given = forward_axis if forward_axis is not None else (
+            body_map.forward_axis if body_map is not None else None)
+        axis = parse_axis(given if given is not None else DEFAULT_FORWARD_AXIS)
+    t_rel = t - t[0]
+    window = _pose_window(t_rel, q, pose_window, still_s, max_motion_deg)
+    try:
+        cal = calibrate(skeleton, q[window], heading=heading, forward_axis=axis,
+                        max_spread_deg=max_spread_deg)
+    except ValueError as exc:
+        raise ValueError(f"calibration on {t_rel[window.start]:.2f}-"
+                         f"{t_rel[window.stop - 1]:.2f} s: {exc} (--pose-window START,END)"
+                         ) from None
+    pose = track(skeleton, cal, q)
+    angles = joint_angles(skeleton, pose.q_segment)
+    result = BodyResult(skeleton, cal, t, q, pose, angles, window, tuple(reports),
+                        np.stack(flag_cols, axis=1), method_name, dict(used_params), axis,
+                        tuple(notes))
+    return replace(result, notes=result.notes + tuple(_sanity_notes(result)))
+
+
+def _sanity_notes(result: BodyResult) -> list[str]:
+    """Warnings when the angles look like a reversed forward axis (knees bending backwards)."""
+    notes = []
+    for side in ("left", "right"):
+        joint = f"{side}_knee"
+        if joint not in result.angles.names:
+            continue
+        flex = result.angles.degrees(joint)[result.window.stop:, 0]
+        if flex.size and flex.min() < -30.0 and -flex.min() > flex.max():
+            fix = ("--forward-axis (the pelvis sensor's axis that points forward)"
+                   if result.forward_axis is not None else "--heading pelvis")
+            notes.append(f"{joint} flexion reaches {flex.min():.0f} deg but only "
+                         f"{flex.max():.0f} deg the other way: the knees bend backwards, so "
+                         f"the facing direction is probably reversed; check {fix}")
+    return notes
