@@ -28,16 +28,16 @@ from margtrack.calibration import (
     fit_ellipsoid,
     fit_known_directions,
     fit_norm,
-    gyro_null,
     identify_noise,
     min_max,
     plot_allan,
-    rotation_estimate,
     segment_means,
     simulate_procedure,
     six_position,
     static_segments,
 )
+from margtrack.calibration.accelerometer import choose_accel_model
+from margtrack.calibration.gyroscope import gyro_from_turns
 from margtrack.calibration.simulate_procedure import error_profile
 
 F = 50.0
@@ -79,6 +79,11 @@ def accelerometer(profile):
                       ("norm fit, 14 free poses", fit_norm(means))):
         scale, mis, _ = TriadCalibration("acc", fit.matrix).decompose()
         rows.append([name, fmt(100 * scale, 3), fmt(fit.bias), fmt(mis, 3)])
+    # the model `margtrack calibrate accel` would choose for these 14 poses (same function)
+    choice = choose_accel_model(means)
+    scale, mis, _ = choice.chosen.decompose()
+    rows.append([f"calibrate accel's choice: {choice.chosen_name}", fmt(100 * scale, 3),
+                 fmt(choice.chosen.b), fmt(mis, 3)])
     table(f"Accelerometer, profile {profile} (MEMS noise, 2 s holds at 100 Hz); "
           "tolerance 0.1 %, 0.01 m/s², 0.05 deg",
           ["method", "scale error (%)", "bias (m/s²)", "misalignment αx αy αz (deg)"], rows)
@@ -135,14 +140,13 @@ def gyroscope(profile):
             known.append(angle)
     rec = sim.simulate(sim.rotation_sequence(steps, 100.0), frame="NED", gyr_errors=errors,
                        seed=8)
-    segments = static_segments(rec)
-    null = gyro_null(rec.gyr[segments[0][0]:segments[0][1]])
-    factors = [[], [], []]
-    for k, ((_, stop), (start, _)) in enumerate(itertools.pairwise(segments)):
-        s = slice(stop - 1, start + 1)
-        r = rotation_estimate(rec.t[s], rec.gyr[s], null.null_rad_s, known[k])
-        factors[r.axis].append(r.scale_factor)
-    eq5 = np.array([np.mean(f) for f in factors])
+    # the turn detection of `margtrack calibrate gyro` (same function): multiples of 90 deg
+    found = gyro_from_turns(rec.t, rec.gyr, static_segments(rec), 90.0)
+    detected = [r.known_deg for r in found.rotations]
+    if detected != known or found.skipped_deg:
+        raise SystemExit(f"turn detection found {detected} (skipped {len(found.skipped_deg)}), "
+                         f"the script turned {known}")
+    null, eq5 = found.null, found.scale.scale_factor
     rows = [["null (deg/s)", fmt(np.degrees(errors.bias)), fmt(np.degrees(null.null_rad_s)),
              fmt(np.degrees(null.null_rad_s - errors.bias)),
              f"floor {fmt(np.degrees(null.noise_floor_rad_s))}"],

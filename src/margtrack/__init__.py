@@ -3,7 +3,9 @@
 The public API, re-exported here:
 
 - :mod:`margtrack.quaternion`, :mod:`margtrack.frames`: the conventions as functions;
-- :class:`Recording` and :mod:`margtrack.io`: data in and out;
+- :class:`Recording` and :mod:`margtrack.io`: data in and out (any CSV through a column map,
+  phone loggers, a pandas DataFrame: ``io.read``, ``io.from_dataframe``); :func:`resample`
+  puts a slower sensor's samples on the gyroscope's timestamps (004's interpolation);
 - :mod:`margtrack.sim`: simulated recordings with truth;
 - :func:`create` / :func:`available_methods` (:mod:`margtrack.methods`): estimators by name,
   all following one contract (:class:`Estimator`, :class:`Estimate`);
@@ -18,7 +20,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 from margtrack import frames, quaternion
-from margtrack.recording import Recording
+from margtrack.recording import Recording, resample
 
 if TYPE_CHECKING:  # pragma: no cover
     from margtrack import bench, body, calibration, estimators, filters, io, live, methods, sim
@@ -66,6 +68,7 @@ __all__ = [
     "live",
     "methods",
     "quaternion",
+    "resample",
     "sim",
     "summarize",
 ]
@@ -78,3 +81,8 @@ def __getattr__(name: str) -> Any:
         module, attr = _LAZY_NAMES[name]
         return getattr(importlib.import_module(module), attr)
     raise AttributeError(f"module 'margtrack' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """The public API and the lazy submodules, so ``mt.<TAB>`` in a REPL lists them."""
+    return sorted(set(__all__) | _LAZY_MODULES | set(_LAZY_NAMES) | {"__version__"})

@@ -13,6 +13,9 @@ the null. Three estimators, from the mean readings of still poses:
   ``|K⁻¹ (y_k - b)| = g``. Gravity's magnitude cannot reveal a rotation of the whole triad,
   so 3 of the 12 parameters are fixed by convention: ``K`` lower triangular (the sensor's x
   axis defines body x, its x-y plane body x-y, as in :class:`margtrack.sim.SensorErrors`).
+
+:func:`choose_accel_model` fits all three and picks the one with the most parameters that
+the poses determine (``margtrack calibrate accel`` and ``benchmarks/calibration_report.py``).
 """
 
 from __future__ import annotations
@@ -28,8 +31,8 @@ from margtrack.frames import STANDARD_GRAVITY_M_S2
 
 Array = NDArray[np.float64]
 
-__all__ = ["AccelFit", "SixPosition", "fit_known_directions", "fit_norm", "nearest_axes",
-           "six_position"]
+__all__ = ["ACCEL_MODELS", "AccelFit", "AccelModelChoice", "SixPosition", "choose_accel_model",
+           "fit_known_directions", "fit_norm", "nearest_axes", "six_position"]
 
 _AXES = "xyz"
 
@@ -206,3 +209,58 @@ def fit_norm(
     res = residual(np.concatenate([k[np.tril_indices(3)], sol.x[6:]]))
     return AccelFit(k, sol.x[6:], res, float(np.sqrt(np.mean(res**2))), y.shape[0],
                     "9-parameter norm fit, lower-triangular K", float(gravity_m_s2))
+
+
+@dataclass(frozen=True)
+class AccelModelChoice:
+    """Every accelerometer model fitted to one set of still poses, and the one to use.
+
+    fits : the least-squares fits that succeeded, by name ("known directions", "norm").
+    six : the six-position result (000 eqs. 1-2), or None when the poses lack an axis.
+    failures : why a model could not be fitted, by name (the ``ValueError`` message).
+    chosen_name : the model used; chosen : it as a calibration.
+    """
+
+    fits: dict[str, AccelFit]
+    six: SixPosition | None
+    failures: dict[str, str]
+    chosen_name: str
+    chosen: TriadCalibration
+
+
+#: the order of preference of :func:`choose_accel_model`: the most parameters first
+ACCEL_MODELS = ("known directions", "norm", "six-position")
+
+
+def choose_accel_model(
+    pose_means: ArrayLike, gravity_m_s2: float = STANDARD_GRAVITY_M_S2
+) -> AccelModelChoice:
+    """Fit every model to the still poses and choose the one with the most parameters.
+
+    The order is :data:`ACCEL_MODELS`: the 12-parameter fit with the poses' directions
+    known (faces of a box), else the 9-parameter norm fit (free poses), else six-position
+    (000 eqs. 1-2). ``pose_means`` (K, 3) m/s² are the mean readings of the still poses
+    (:func:`margtrack.calibration.static.segment_means`). Raises ``ValueError`` listing why
+    each model failed when none can be fitted ("record each axis up and down").
+    """
+    fits: dict[str, AccelFit] = {}
+    failures: dict[str, str] = {}
+    for name, fit in (("known directions", fit_known_directions), ("norm", fit_norm)):
+        try:
+            fits[name] = fit(pose_means, gravity_m_s2=gravity_m_s2)
+        except ValueError as exc:
+            failures[name] = str(exc)
+    six = None
+    try:
+        six = six_position(pose_means, gravity_m_s2)
+    except ValueError as exc:
+        failures["six-position"] = str(exc)
+    candidates = {**{k: f.triad() for k, f in fits.items()},
+                  **({"six-position": six.triad()} if six is not None else {})}
+    for name in ACCEL_MODELS:
+        if name in candidates:
+            return AccelModelChoice(fits, six, failures, name, candidates[name])
+    reasons = "; ".join(f"{k}: {v}" for k, v in failures.items())
+    raise ValueError(
+        f"no accelerometer model could be fitted ({reasons}): record each axis up and down"
+    )

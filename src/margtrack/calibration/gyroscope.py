@@ -14,6 +14,7 @@ rotation about body axis ``j`` is integrated on that axis alone, as the paper do
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -27,8 +28,10 @@ Array = NDArray[np.float64]
 __all__ = [
     "GyroNull",
     "GyroScale",
+    "GyroTurns",
     "RotationEstimate",
     "fit_gyro_matrix",
+    "gyro_from_turns",
     "gyro_null",
     "gyro_scale",
     "integrate_rotation",
@@ -164,3 +167,67 @@ def fit_gyro_matrix(measured_rad: ArrayLike, true_rad: ArrayLike) -> Array:
         raise ValueError("the turns must be about three independent axes to determine K")
     solution, *_ = np.linalg.lstsq(true, meas, rcond=None)  # meas = true @ K^T
     return solution.T
+
+
+@dataclass(frozen=True)
+class GyroTurns:
+    """Gyroscope null and eq. 5 scale factors found from a recording of turns between holds.
+
+    null : from the first still period. rotations : the turns accepted, in time order,
+    each a whole multiple of the known angle about one axis. skipped_deg : the integrated
+    angles (3,) deg of the turns that were not (listed for the user). scale : eq. 5
+    averaged per axis (:func:`gyro_scale`).
+    """
+
+    null: GyroNull
+    rotations: tuple[RotationEstimate, ...]
+    skipped_deg: tuple[Array, ...]
+    scale: GyroScale
+
+
+def gyro_from_turns(
+    t: ArrayLike, gyr: ArrayLike, still_segments: Sequence[tuple[int, int]],
+    angle_deg: float = 90.0, tolerance: float = 0.05,
+) -> GyroTurns:
+    """Null (first still period) and per-axis scale factors from the turns between holds.
+
+    Parameters
+    ----------
+    t : (N,) s, increasing. gyr : (N, 3) rad/s, raw.
+    still_segments : the holds as ``(start, stop)`` sample pairs in time order
+        (:func:`margtrack.calibration.static.static_segments`); the first is the null's.
+    angle_deg : every turn is a whole multiple of it about one body axis (90: from face to
+        face of a box); a turn's known angle is the nearest non-zero multiple of its
+        integral on the axis that turned most.
+    tolerance : a turn whose integral is further than this fraction from that multiple
+        is skipped (it was not about one axis, or not a multiple).
+
+    Raises ``ValueError`` with fewer than two holds, or when an axis has no accepted turn.
+    """
+    t_arr = np.asarray(t, dtype=np.float64)
+    g = np.asarray(gyr, dtype=np.float64)
+    if not (np.isfinite(angle_deg) and angle_deg > 0.0):
+        raise ValueError(f"angle_deg must be a finite angle > 0, got {angle_deg!r}")
+    if len(still_segments) < 2:
+        raise ValueError(f"found {len(still_segments)} still period(s); need a still start "
+                         "and turns between holds")
+    first = still_segments[0]
+    null = gyro_null(g[first[0]:first[1]])
+    turns: list[RotationEstimate] = []
+    skipped: list[Array] = []
+    for (_, stop), (start, _) in itertools.pairwise(still_segments):
+        s = slice(stop - 1, start + 1)  # from the last still sample to the next one
+        angles = np.degrees(integrate_rotation(t_arr[s], g[s], null.null_rad_s))
+        axis = int(np.argmax(np.abs(angles)))
+        known = angle_deg * round(angles[axis] / angle_deg)
+        if known == 0.0 or abs(angles[axis] / known - 1.0) > tolerance:
+            skipped.append(angles)
+            continue
+        turns.append(rotation_estimate(t_arr[s], g[s], null.null_rad_s, known, axis, tolerance))
+    try:
+        scale = gyro_scale(turns, null.null_rad_s)
+    except ValueError as exc:
+        listed = "; ".join(str(np.round(a, 1).tolist()) for a in skipped)
+        hint = f" ({len(skipped)} turn(s) skipped, integrated deg: {listed})" if skipped else ""
+        raise ValueError(f"{exc}{hint}") from None
+    return GyroTurns(null, tuple(turns), tuple(skipped), scale)

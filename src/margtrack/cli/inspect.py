@@ -13,11 +13,14 @@ from rich.table import Table
 from margtrack.cli.app import app, console, err_console, friendly_errors
 from margtrack.cli.options import (
     AccUnitOption,
+    ColumnOption,
     GyrUnitOption,
     MagUnitOption,
+    ProfileOption,
     TimeUnitOption,
     check_units,
-    units,
+    read_options,
+    reader_warnings,
 )
 from margtrack.units import UnitError
 
@@ -42,7 +45,8 @@ def methods(
             doc = (cls.__doc__ or "").strip().splitlines()[0].replace("``", "")
             star = " [green](default)[/]" if method == registry.DEFAULT_METHOD else ""
             table.add_row(method + star, doc)
-        console.print(table)
+        _print_whole(table)
+        console.print(PAPERS_NOTE, soft_wrap=True)
         return
     cls = registry.get(name)
     shared = {spec.name for spec in specs(Params)}
@@ -56,13 +60,37 @@ def methods(
             continue
         table = Table(title=title, title_justify="left")
         table.add_column("parameter", no_wrap=True)
-        table.add_column("default", no_wrap=True)
+        table.add_column("default", overflow="fold")  # whole, folded if it must be
         table.add_column("unit", no_wrap=True)
-        table.add_column("range")
-        table.add_column("what")
+        table.add_column("range", overflow="fold")
+        table.add_column("what", overflow="fold")
         for spec in rows:
             table.add_row(spec.name, repr(spec.default), spec.unit, spec.bounds_text(), spec.help)
+        _print_whole(table)
+    console.print(f"set one with -p NAME=VALUE (e.g. margtrack run REC -o OUT -m {cls.name} "
+                  f"-p {(own or base)[0].name}=...). {PAPERS_NOTE}", soft_wrap=True)
+
+
+#: where the paper numbers of the help texts ("000 eq. 5") are resolved
+PAPERS_NOTE = "Papers 000-004 cited above: docs/papers.md."
+
+
+def _print_whole(table: Table) -> None:
+    """Print ``table`` with every cell whole: a pipe or a file gets the table's full width.
+
+    On a terminal rich fits the table to the window, folding long cells onto more lines
+    (never cutting them); elsewhere rich would assume 80 columns, so the table is printed
+    as wide as its longest rows need.
+    """
+    if console.is_terminal:
         console.print(table)
+        return
+    from rich.console import Console
+    from rich.measure import Measurement
+
+    width = Measurement.get(console, console.options.update(width=10_000), table).maximum
+    Console(width=max(width, console.width), file=console.file, color_system=None,
+            highlight=False).print(table)
 
 
 @app.command()
@@ -73,11 +101,20 @@ def info(
     acc_unit: AccUnitOption = None,
     mag_unit: MagUnitOption = None,
     time_unit: TimeUnitOption = None,
+    column: ColumnOption = None,
+    profile: ProfileOption = None,
 ) -> None:
-    """Say what a recording holds: samples, rate, duration, units, frame, gaps, truth."""
+    """Say what a recording or an estimate holds: samples, rate, units, frame, gaps, flags."""
     from margtrack import io
+    from margtrack.io.estimate_reader import is_estimate_file
 
-    recordings = io.read_any(path, **units(gyr_unit, acc_unit, mag_unit, time_unit))
+    if is_estimate_file(path):
+        _estimate_info(path)
+        return
+    with reader_warnings():
+        recordings = io.read_any(
+            path, **read_options(gyr_unit, acc_unit, mag_unit, time_unit, column, profile)
+        )
     for rec in recordings:
         try:
             check_units(rec, path if len(recordings) == 1 else f"{path} [{rec.name}]")
@@ -114,6 +151,9 @@ def info(
         truth = "none"
         if rec.quat_true is not None:
             truth = f"quat_true in {rec.frame}"
+            holes = int(rec.quat_true.shape[0] - np.count_nonzero(rec.truth_valid))
+            if holes:
+                truth += f", {holes} samples without truth (NaN, skipped by the metrics)"
             if rec.movement is not None:
                 truth += f", movement {100 * np.mean(rec.movement):.1f} % of samples"
         table.add_row("truth", truth)
@@ -121,3 +161,48 @@ def info(
             if key != "info":
                 table.add_row(key, str(value))
         console.print(table)
+
+
+def _estimate_info(path: Path) -> None:
+    """The ``info`` table of an estimate file (what ``margtrack run`` wrote)."""
+    from margtrack.estimator.flags import count_flags, summary
+    from margtrack.io.estimate_reader import read_estimate
+
+    est = read_estimate(path)
+    table = Table(title=f"{path.name}: orientation estimate", show_header=False)
+    table.add_column("field")
+    table.add_column("value", overflow="fold")
+    dt = np.diff(est.t)
+    table.add_row("method", est.method or "not stated")
+    table.add_row(
+        "frame",
+        escape(f"quat [w, x, y, z], body to {est.frame} (earth)") if est.frame else
+        "not stated in the file (a CSV without a 'frame=' line): give `margtrack plot` "
+        "--frame ENU or NED",
+    )
+    table.add_row("samples", f"{est.n_samples}")
+    if dt.size:
+        table.add_row("rate", f"{1.0 / np.median(dt):.3f} Hz (median interval)")
+    table.add_row("duration", f"{est.t[-1] - est.t[0]:.3f} s (t {est.t[0]:.3f}..{est.t[-1]:.3f})")
+    if est.flags is None:
+        table.add_row("flags", "none stored")
+    else:
+        table.add_row("flags", summary(est.flags).removeprefix("flags: "))
+        counts = count_flags(est.flags)
+        for name, n in counts.items():
+            table.add_row(f"  {name}", f"{n} samples ({100.0 * n / est.n_samples:.2f} %)")
+    bias = est.outputs.get("gyr_bias_rad_s")
+    if bias is not None:
+        deg = np.degrees(np.asarray(bias, dtype=np.float64))
+        table.add_row(
+            "gyr bias (deg/s)",
+            "; ".join(f"{axis} {deg[:, k].min():+.4f}..{deg[:, k].max():+.4f} "
+                      f"(last {deg[-1, k]:+.4f})" for k, axis in enumerate("xyz")),
+        )
+    others = [f"{name} {tuple(np.shape(value))}" for name, value in est.outputs.items()
+              if name != "gyr_bias_rad_s"]
+    if others:
+        table.add_row("other outputs", ", ".join(others))
+    if est.params:
+        table.add_row("parameters", ", ".join(f"{k}={v!r}" for k, v in sorted(est.params.items())))
+    _print_whole(table)
