@@ -17,6 +17,15 @@ a pending calibration, and if the batch's last frame crosses a tick of the displ
 (data time, ``display_hz``) its pose is computed (000, eqs. 7, 11) and published to every
 subscriber: callbacks run on the worker thread (keep them short), queues drop their oldest
 pose when full.
+
+Field faults stay with their sensor: each sensor's clock is mapped to session time (0 at
+the first frame) on its own, resets and jumps re-synchronise it, losses are counted from
+sequence numbers or timestamp gaps (:mod:`~margtrack.live.clocks`); a sensor silent for
+``stale_after_s`` stops integrating (:mod:`~margtrack.live.assembler`); bad samples are
+flagged by the estimator's input policy and a failing filter is re-initialised for that
+sensor alone (:mod:`~margtrack.live.filtering`). The engine stops only when asked or on
+its own bug or a broken source: then :attr:`Engine.error` says why, and the headless
+summary (:meth:`Engine.summary`, written to ``summary_path`` when the worker ends) too.
 """
 
 from __future__ import annotations
@@ -39,10 +48,12 @@ from margtrack.body.offsets import Heading
 from margtrack.estimators.base import Estimator, Params
 from margtrack.live.assembler import FrameAssembler, Frames, concatenate
 from margtrack.live.avatars import Avatars
+from margtrack.live.clocks import SensorClocks
+from margtrack.live.filtering import SensorFilters
 from margtrack.live.protocol import Chunk, Source, SourceInfo
 from margtrack.live.recording import LiveRecording
 from margtrack.live.reference_pose import CalibrationRequest
-from margtrack.live.stats import EngineStats, StatsMeter
+from margtrack.live.stats import EngineStats, StatsMeter, summary_dict, write_summary
 
 Array = NDArray[np.float64]
 
@@ -90,6 +101,13 @@ class Engine:
     calibrate_at_start : request a calibration on the first still second.
     late_after_s : a frame processed later than this after its arrival counts as late, s.
     max_wait_s, tick_hz : frame assembly (:class:`FrameAssembler`).
+    stale_after_s : a sensor without samples for this long (session time) is stale: it
+        stops integrating and restarts when samples return, s (default five sample
+        periods, 0.1 s without a nominal rate).
+    clock_jump_s : a sensor clock step beyond this (or back) is a jump or reset
+        (:class:`~margtrack.live.clocks.SensorClocks`), s.
+    summary_path : where the worker writes the headless summary JSON when it stops
+        (:meth:`summary`; atomically, replacing an older file: check it first).
     """
 
     def __init__(
@@ -107,6 +125,9 @@ class Engine:
         late_after_s: float = 0.1,
         max_wait_s: float = 0.05,
         tick_hz: float | None = None,
+        stale_after_s: float | None = None,
+        clock_jump_s: float = 1.0,
+        summary_path: str | None = None,
     ) -> None:
         if not (math.isfinite(display_hz) and display_hz > 0):
             raise ValueError(f"display_hz must be a finite number > 0, got {display_hz}")
@@ -129,7 +150,16 @@ class Engine:
         self.late_after_s = float(late_after_s)
         self._calibrations = avatars.identity() if avatars is not None else []
         self._offsets = Avatars.offsets(self._calibrations) if avatars is not None else None
-        self._assembler = FrameAssembler(info.n_sensors, info.has_mag, max_wait_s, tick_hz)
+        if stale_after_s is None:
+            stale_after_s = 5.0 / info.rate_hz if info.rate_hz else 0.1
+        self.stale_after_s = float(stale_after_s)
+        self._assembler = FrameAssembler(info.n_sensors, info.has_mag, max_wait_s, tick_hz,
+                                         stale_after_s=self.stale_after_s)
+        self._clocks = SensorClocks(info.n_sensors, info.rate_hz, clock_jump_s)
+        self._assembler.heard_s = self._clocks.heard_s  # one array: held-back samples count
+        self._filters = SensorFilters(self._estimator, info.n_sensors)
+        self.summary_path = summary_path
+        self._fatal: str | None = None
         self._meter = StatsMeter(info.sensor_names)
         self._lock = threading.Lock()
         self._pending: Params | None = None
@@ -147,6 +177,12 @@ class Engine:
         self._stop = threading.Event()
         self._done = threading.Event()
         self._error = ""
+        #: hooks called with every batch of frames before / after it is processed (on the
+        #: worker thread): raw recording (:class:`~margtrack.live.recording.RawRecorder`) and
+        #: the replay of its events (:class:`~margtrack.live.replay.LiveReplaySource`); a
+        #: ``before_batch`` hook may return replacement frames (None: keep them)
+        self.before_batch: list[Callable[[Frames], Frames | None]] = []
+        self.after_batch: list[Callable[[Frames], None]] = []
         if calibrate_at_start:
             self.request_calibration()
 
@@ -205,6 +241,15 @@ class Engine:
         with self._lock:
             return list(self._calibrations)
 
+    def set_calibrations(self, calibrations: Sequence[Any]) -> None:
+        """Put per-person body calibrations in force (a replayed or saved calibration)."""
+        if self.avatars is None or len(calibrations) != self.avatars.n_people:
+            raise ValueError(f"need one calibration per person of the body model, got "
+                             f"{len(calibrations)}")
+        with self._lock:
+            self._calibrations = list(calibrations)
+            self._offsets = Avatars.offsets(self._calibrations)
+
     def start_recording(self) -> None:
         """Record every processed frame from now on (replaces an unfinished recording)."""
         with self._lock:
@@ -259,8 +304,24 @@ class Engine:
 
     @property
     def data_time_s(self) -> float:
-        """Sample time of the last processed frame, s (``-inf`` before the first)."""
+        """Session time of the last processed frame, s (``-inf`` before the first)."""
         return self._assembler.last_time_s
+
+    @property
+    def session_time_s(self) -> float:
+        """Session time of the last processed frame, s (0 at the first frame, 0 before it)."""
+        t = self._assembler.last_time_s
+        return t if math.isfinite(t) else 0.0
+
+    @property
+    def session_origin_s(self) -> float:
+        """Device time of the session's first sample, s (``nan`` before it): session 0."""
+        return self._clocks.origin_s
+
+    @property
+    def error(self) -> str | None:
+        """Why the worker stopped on its own (its bug, a broken source), else None."""
+        return self._fatal
 
     @property
     def latest(self) -> Pose | None:
@@ -273,7 +334,12 @@ class Engine:
         """Assemble ``chunks`` and process the frames that are ready; returns a published pose."""
         t0 = time.perf_counter()
         now = t0 if now_s is None else now_s
-        frames = self._assembler.push(list(chunks), now)
+        mapped = self._clocks.map(list(chunks))
+        if self._clocks.restarts:
+            for sensor, t_s in self._clocks.restarts:
+                self._assembler.request_restart(sensor, t_s)
+            self._clocks.restarts.clear()
+        frames = self._assembler.push(mapped, now)
         if flush:
             frames += self._assembler.expire(now, flush=True)
         self._meter.time_assemble_s += time.perf_counter() - t0
@@ -282,13 +348,13 @@ class Engine:
     def process(self, frames: Frames) -> Pose | None:
         """Filters, recording, calibration and publishing for one batch of complete frames."""
         t0 = time.perf_counter()
+        for hook in tuple(self.before_batch):
+            frames = hook(frames) or frames  # a hook may return the frames to process
         with self._lock:
             if self._pending is not None:
                 self._estimator.params, self._pending = self._pending, None
             recording, request = self._recording, self._request
-        est = self._estimator.run(gyr=frames.gyr, acc=frames.acc, mag=frames.mag,
-                                  t=frames.t_s, check_units=False)
-        q = est.quat  # (S, N, 4)
+        q, _flags = self._filters.run(frames)  # (S, N, 4): per-sensor faults isolated
         t1 = time.perf_counter()
         n = frames.n_frames
         self._frame_index += n
@@ -313,6 +379,8 @@ class Engine:
         meter.time_body_s += t2 - t1
         meter.time_publish_s += t3 - t2
         meter.batch(frames.t_s, frames.held, frames.mag, t3 - t0, late)
+        for hook in tuple(self.after_batch):
+            hook(frames)
         return pose
 
     def _pose(self, frames: Frames, q_last: Array) -> Pose:
@@ -358,8 +426,33 @@ class Engine:
         a = self._assembler
         malformed = self._source.stats.malformed if self._source is not None else 0
         dropped = a.dropped.copy()
-        return self._meter.snapshot(self.info.n_sensors, dropped, a.late, malformed,
-                                    self.calibration_status, self._error)
+        c, f = self._clocks, self._filters
+        counts = {
+            "received": c.received.copy(), "processed": f.processed.copy(),
+            "lost": c.lost.copy(), "gaps": c.gaps + a.resumed, "resyncs": c.resyncs.copy(),
+            "flagged": f.flagged.copy(), "reinitialised": f.reinitialised.copy(),
+            "held": dropped - a.discarded_by_sensor, "late": a.late_by_sensor.copy(),
+            "duplicates": a.duplicates_by_sensor.copy(), "bad_time": c.bad_time.copy(),
+            "discarded": a.discarded_by_sensor.copy(),
+        }
+        stale = a.stale
+        stats = self._meter.snapshot(self.info.n_sensors, dropped, a.late, malformed,
+                                     self.calibration_status, self._error, counts=counts,
+                                     stale=stale, stale_s=a.stale_s.copy(),
+                                     errors=tuple(f.errors))
+        return dataclasses.replace(stats, session_s=self.session_time_s,
+                                   engine_error=self._fatal,
+                                   lost_samples=int(c.lost.sum()),
+                                   stale_sensors=int(stale.sum()))
+
+    def summary(self) -> dict[str, Any]:
+        """The headless summary (:func:`margtrack.live.stats.summary_dict`) now."""
+        return summary_dict(self.stats(), method=self.method, running=self.running,
+                            stale_after_s=self.stale_after_s)
+
+    def write_summary(self, path: str) -> None:
+        """Write :meth:`summary` to ``path`` as JSON, atomically (replaces an older file)."""
+        write_summary(self.summary(), path, force=True)
 
     # -- the worker thread -------------------------------------------------------------------
     def start(self, source: Source, poll_timeout_s: float = 0.02) -> Engine:
@@ -369,6 +462,9 @@ class Engine:
         if tuple(source.info.sensor_names) != self.info.sensor_names:
             raise ValueError("the source's sensors differ from the ones the engine was built for")
         self._source = source
+        attach = getattr(source, "attach_engine", None)  # a replay that re-applies events
+        if attach is not None:
+            attach(self)
         self._thread = threading.Thread(target=self._run, args=(source, poll_timeout_s),
                                         name="margtrack-live-engine", daemon=True)
         self._thread.start()
@@ -383,10 +479,26 @@ class Engine:
                 self.push(chunks, flush=end)
                 if end:
                     break
-        except Exception as exc:  # reported by stats().error and stop()
-            self._error = f"engine stopped: {exc!r}"
+            else:  # stopped: what the source already holds (up to 0.25 s of work) and the
+                # frames still waiting for samples are processed, so they are counted
+                deadline = time.perf_counter() + 0.25
+                while time.perf_counter() < deadline:
+                    chunks = source.poll(0.0)
+                    if not chunks:
+                        break
+                    self.push(chunks)
+                self.push([], flush=True)
+        except Exception as exc:  # reported by stats().error, .error and the summary
+            self._fatal = f"engine stopped: {exc!r}"
+            self._error = self._fatal
         finally:
-            source.close()
+            with contextlib.suppress(Exception):
+                source.close()
+            if self.summary_path is not None:
+                try:
+                    self.write_summary(self.summary_path)
+                except Exception as exc:  # the session's result stays in stats()
+                    self._error = f"could not write the summary {self.summary_path}: {exc!r}"
             self._done.set()
 
     @property

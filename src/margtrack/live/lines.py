@@ -13,13 +13,21 @@ One sample of one sensor per line, comma separated, SI units, ``.`` as decimal p
   at rest); ``mx,my,mz``: magnetic field, µT (any unit: only directions and relative norms
   are used). A source built with ``with_mag=False`` takes 8 fields (no ``mx,my,mz``).
 
+An optional last field ``seq`` (``t,sensor,gx,...,mz,seq``: 12 fields, 9 without the
+magnetometer) is the sender's per-sensor sequence number, a non-negative integer that grows
+by 1 with every sample the sensor sends: the engine counts lost samples from its gaps (a
+datagram dropped by the network or by a full receive buffer) exactly; a smaller number
+than the previous one means the sender restarted (counted as no loss). Without it, losses
+are estimated from timestamp gaps.
+
 Empty lines and lines starting with ``#`` are ignored. A line with another field count, a
 number that does not parse or is not finite, or an unknown sensor is *rejected*: counted in
 the source's :class:`~margtrack.live.protocol.SourceStats` with the reason (line text
 included), never raised, so one corrupt packet does not stop a live session. Lines end with
 ``\\n`` (``\\r\\n`` accepted); a UDP datagram may hold several lines.
 
-Example, sensor 2 at rest in ENU facing north: ``12.34,2,0,0,0,0,0,9.81,0,21.7,-43.3``.
+Example, sensor 2 at rest in ENU facing north: ``12.34,2,0,0,0,0,0,9.81,0,21.7,-43.3``;
+the same as its 1235th sample with a sequence number: ``12.34,2,0,0,0,0,0,9.81,0,21.7,-43.3,1234``.
 """
 
 from __future__ import annotations
@@ -32,16 +40,24 @@ import numpy as np
 
 from margtrack.live.protocol import Chunk, SourceStats
 
-__all__ = ["LineDecoder", "format_line", "parse_line"]
+__all__ = ["LineDecoder", "format_line", "parse_line", "parse_line_seq"]
 
 _MAX_LINE_CHARS = 1024  # longer than any valid line; a stream without newlines is rejected
 
 
 def format_line(t_s: float, sensor: int | str, gyr: Sequence[float], acc: Sequence[float],
-                mag: Sequence[float] | None = None) -> str:
-    """One line of the format (with ``\\n``), ``repr`` precision so values round-trip exactly."""
+                mag: Sequence[float] | None = None, seq: int | None = None) -> str:
+    """One line of the format (with ``\\n``), ``repr`` precision so values round-trip exactly.
+
+    ``seq``: the optional per-sensor sequence number (appended as the last field).
+    """
     values = [*gyr, *acc, *(mag if mag is not None else ())]
-    return ",".join([repr(float(t_s)), str(sensor), *(repr(float(v)) for v in values)]) + "\n"
+    fields = [repr(float(t_s)), str(sensor), *(repr(float(v)) for v in values)]
+    if seq is not None:
+        if int(seq) < 0:
+            raise ValueError(f"seq must be a non-negative integer, got {seq}")
+        fields.append(str(int(seq)))
+    return ",".join(fields) + "\n"
 
 
 def parse_line(
@@ -50,14 +66,32 @@ def parse_line(
     """Parse one line into ``(t_s, sensor_index, gyr (3,), acc (3,), mag (3,) or None)``.
 
     Raises ``ValueError`` saying what is wrong with the line; :class:`LineDecoder` turns it
-    into a rejection count.
+    into a rejection count. An optional sequence number is checked and dropped
+    (:func:`parse_line_seq` returns it).
     """
+    return parse_line_seq(line, sensor_names, with_mag)[:5]  # type: ignore[return-value]
+
+
+def parse_line_seq(
+    line: str, sensor_names: Sequence[str], with_mag: bool = True
+) -> tuple[float, int, np.ndarray, np.ndarray, np.ndarray | None, int | None]:
+    """:func:`parse_line` plus the optional sequence number (``None`` when absent)."""
     fields = line.strip().split(",")
     expected = 11 if with_mag else 8
+    seq = None
+    if len(fields) == expected + 1:
+        text = fields.pop().strip()
+        if not text.isdigit():
+            raise ValueError(
+                f"the sequence number (last field) must be a non-negative integer, got "
+                f"{text[:20]!r}: {line.strip()[:80]!r}"
+            )
+        seq = int(text)
     if len(fields) != expected:
         raise ValueError(
             f"expected {expected} comma-separated fields (t,sensor,gx,gy,gz,ax,ay,az"
-            f"{',mx,my,mz' if with_mag else ''}), got {len(fields)}: {line.strip()[:80]!r}"
+            f"{',mx,my,mz' if with_mag else ''}[,seq]), got {len(fields)}: "
+            f"{line.strip()[:80]!r}"
         )
     key = fields[1].strip()
     if key.isdigit():
@@ -78,7 +112,7 @@ def parse_line(
     if not all(math.isfinite(v) for v in values):
         raise ValueError(f"a field is not finite (nan or inf): {line.strip()[:80]!r}")
     arr = np.array(values[1:])
-    return values[0], sensor, arr[0:3], arr[3:6], arr[6:9] if with_mag else None
+    return values[0], sensor, arr[0:3], arr[3:6], arr[6:9] if with_mag else None, seq
 
 
 class LineDecoder:
@@ -116,7 +150,8 @@ class LineDecoder:
             if not text or text.startswith("#"):
                 continue
             try:
-                t, sensor, gyr, acc, mag = parse_line(text, self.sensor_names, self.with_mag)
+                t, sensor, gyr, acc, mag, seq = parse_line_seq(
+                    text, self.sensor_names, self.with_mag)
             except ValueError as exc:
                 self.stats.reject(str(exc))
                 continue
@@ -128,6 +163,7 @@ class LineDecoder:
                     acc=acc.reshape(1, 1, 3),
                     mag=None if mag is None else mag.reshape(1, 1, 3),
                     arrival_s=np.array([arrival]),
+                    seq=None if seq is None else np.array([seq], dtype=np.int64),
                 )
             )
             self.stats.samples += 1

@@ -8,7 +8,10 @@ source's S sensors (``sensors``, indices into ``SourceInfo.sensor_names``), with
 - ``mag`` (K, N, 3) magnetic field, any unit (µT preferred), or ``None`` for a source
   without magnetometers;
 - ``arrival_s`` (N,): when each frame reached the program, on the :func:`time.perf_counter`
-  clock; the engine's end-to-end latency is measured from it.
+  clock; the engine's end-to-end latency is measured from it;
+- ``seq`` (N,) int64 or ``None``: the sender's per-sensor sequence number of each sample
+  (line sources whose lines carry one, :mod:`margtrack.live.lines`); the engine counts
+  losses from its gaps (without it, from timestamp gaps).
 
 Block sources (replay, simulator) deliver every sensor at once (K = S); line sources (UDP,
 serial) deliver one sensor's sample at a time (K = N = 1) and the engine's
@@ -46,6 +49,7 @@ class Chunk:
     acc: Array
     mag: Array | None
     arrival_s: Array
+    seq: NDArray[np.int64] | None = None
 
     @property
     def n_frames(self) -> int:

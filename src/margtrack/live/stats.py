@@ -18,19 +18,31 @@ Definitions (all times on the :func:`time.perf_counter` clock, s):
 - *sensor health*: each sensor's received rate over the last ``window_s`` of data time, its
   dropped samples, and the magnetic-norm check ``|m| / |m_ref|`` of the latest sample against
   the sensor's median norm over its first second (``mag_ok`` within ``mag_norm_tol``).
+- *per-sensor counts* (:class:`SensorHealth`, the headless summary and the page):
+  ``received`` samples that reached the engine, ``processed`` samples the filter ran on
+  (not held), ``lost`` samples never received (sequence-number or timestamp gaps),
+  ``gaps`` intervals with missing samples or restarts (losses, resyncs, stale spells),
+  ``resyncs`` clock re-synchronisations, ``bad_time`` samples discarded for a stamp out of
+  line with the sensor's clock, ``late``/``duplicates`` samples discarded by the frame
+  assembly, ``flagged`` processed samples with a data flag of the input policy,
+  ``reinitialised`` filter re-initialisations after a failure, ``stale`` whether the
+  sensor is stale now and ``stale_s`` the session time it spent stale, s.
 """
 
 from __future__ import annotations
 
+import json
+import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 Array = NDArray[np.float64]
 
-__all__ = ["EngineStats", "SensorHealth", "StatsMeter"]
+__all__ = ["EngineStats", "SensorHealth", "StatsMeter", "summary_dict", "write_summary"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,6 +54,22 @@ class SensorHealth:
     dropped: NDArray[np.int64]
     mag_norm_ratio: Array
     mag_ok: NDArray[np.bool_]
+    counts: dict[str, NDArray[np.int64]] = field(default_factory=dict)
+    stale: NDArray[np.bool_] | None = None
+    stale_s: Array | None = None
+    errors: tuple[str, ...] = ()
+
+    def sensor(self, index: int) -> dict[str, object]:
+        """Sensor ``index``'s counts as plain Python values (the summary's per-sensor entry)."""
+        out: dict[str, object] = {k: int(v[index]) for k, v in self.counts.items()}
+        out["stale"] = bool(self.stale[index]) if self.stale is not None else False
+        out["stale_s"] = float(self.stale_s[index]) if self.stale_s is not None else 0.0
+        rate = float(self.rate_hz[index])
+        out["rate_hz"] = rate if np.isfinite(rate) else None
+        ratio = float(self.mag_norm_ratio[index])
+        out["mag_norm_ratio"] = ratio if np.isfinite(ratio) else None
+        out["last_error"] = (self.errors[index] or None) if self.errors else None
+        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -69,6 +97,14 @@ class EngineStats:
     health: SensorHealth
     calibration: str
     error: str
+    #: session time of the last processed frame, s (0 at the session's first frame)
+    session_s: float = 0.0
+    #: why the engine stopped on its own (its bug or a broken source), None while it is fine
+    engine_error: str | None = None
+    #: samples never received (sequence-number or timestamp gaps), all sensors
+    lost_samples: int = 0
+    #: sensors stale now
+    stale_sensors: int = 0
 
     def summary(self) -> str:
         """One line for logs and the viewer."""
@@ -77,7 +113,10 @@ class EngineStats:
             f"{self.processing_s_per_frame * 1e3:.3f} ms/frame "
             f"({self.processing_s_per_sample * 1e6:.2f} us/sample), latency p50 "
             f"{self.latency_p50_s * 1e3:.1f} ms p95 {self.latency_p95_s * 1e3:.1f} ms, "
-            f"dropped {self.dropped_samples}, late frames {self.late_frames}"
+            f"dropped {self.dropped_samples}, lost {self.lost_samples}, "
+            f"late frames {self.late_frames}"
+            + (f", {self.stale_sensors} stale" if self.stale_sensors else "")
+            + (f"; STOPPED: {self.engine_error}" if self.engine_error else "")
         )
 
 
@@ -134,8 +173,8 @@ class StatsMeter:
         self.poses += 1
         self._latency.append(latency_s)
 
-    def health(self, dropped: NDArray[np.int64]) -> SensorHealth:
-        """Per-sensor rate, drops and magnetic-norm check now."""
+    def health(self, dropped: NDArray[np.int64], **extra: object) -> SensorHealth:
+        """Per-sensor rate, drops and magnetic-norm check now (``extra``: the other fields)."""
         n = len(self.names)
         rate = np.zeros(n)
         if len(self._received) >= 2:
@@ -144,11 +183,13 @@ class StatsMeter:
             rate = counts / span if span > 0 else rate
         ratio = self._mag_now / self._mag_ref
         ok = np.abs(ratio - 1.0) <= self.mag_norm_tol  # NaN (no reference yet) -> False
-        return SensorHealth(self.names, np.asarray(rate, float), dropped.copy(), ratio, ok)
+        return SensorHealth(self.names, np.asarray(rate, float), dropped.copy(), ratio, ok,
+                            **extra)  # type: ignore[arg-type]
 
     def snapshot(self, n_sensors: int, dropped: NDArray[np.int64], late_samples: int,
-                 malformed: int, calibration: str, error: str) -> EngineStats:
-        """An :class:`EngineStats` of everything so far."""
+                 malformed: int, calibration: str, error: str,
+                 **sensor_fields: object) -> EngineStats:
+        """An :class:`EngineStats` of everything so far (``sensor_fields``: SensorHealth's)."""
         per_frame = float(np.median(self._per_frame)) if self._per_frame else float("nan")
         lat = np.asarray(self._latency) if self._latency else np.array([np.nan])
         return EngineStats(
@@ -170,7 +211,51 @@ class StatsMeter:
             time_body_s=self.time_body_s,
             time_publish_s=self.time_publish_s,
             time_assemble_s=self.time_assemble_s,
-            health=self.health(dropped),
+            health=self.health(dropped, **sensor_fields),
             calibration=calibration,
             error=error,
         )
+
+
+def _number(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def summary_dict(stats: EngineStats, **engine_extra: object) -> dict[str, object]:
+    """The headless summary: ``{"engine": {...}, "sensors": {NAME: {...}}}`` (JSON-ready).
+
+    ``engine.error`` is None unless the engine stopped on its own (its bug, a broken
+    source); per sensor the counts of :class:`SensorHealth` (module docstring).
+    """
+    engine: dict[str, object] = {
+        "error": stats.engine_error,
+        "frames": stats.frames,
+        "session_s": _number(stats.session_s),
+        "poses": stats.poses_published,
+        "lost": stats.lost_samples,
+        "dropped": stats.dropped_samples,
+        "late_samples": stats.late_samples,
+        "malformed_lines": stats.malformed_lines,
+        "latency_p50_s": _number(stats.latency_p50_s),
+        "latency_p95_s": _number(stats.latency_p95_s),
+        "processing_s_per_frame": _number(stats.processing_s_per_frame),
+        "subscriber_errors": stats.subscriber_errors,
+        "messages": stats.error or None,
+        "calibration": stats.calibration,
+        **engine_extra,
+    }
+    sensors = {name: stats.health.sensor(i) for i, name in enumerate(stats.health.names)}
+    return {"engine": engine, "sensors": sensors}
+
+
+def write_summary(summary: dict[str, object], path: str | Path, force: bool = True) -> Path:
+    """Write a :func:`summary_dict` as JSON atomically (temp file + rename); returns the path.
+
+    ``force=False`` refuses an existing file (the CLI checks that before the session).
+    """
+    from margtrack.io.safe_output import atomic_output, check_output
+
+    out = check_output(path, (), force=force)
+    with atomic_output(out) as tmp:
+        Path(tmp).write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
+    return out

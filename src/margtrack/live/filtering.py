@@ -1,0 +1,120 @@
+"""The live engine's filter step: S sensors in one estimator, each sensor's faults its own.
+
+:class:`SensorFilters` runs one batch of :class:`~margtrack.live.assembler.Frames`
+through the estimator's multi-sensor ``run`` (the input policy of
+:mod:`margtrack.estimator.screening` flags and skips bad samples per sensor) and adds what a
+live stream needs on top, per sensor:
+
+- *restarts* (``Frames.restart``: a clock resync, a stale sensor coming back): the batch is
+  split there and the sensor restarts from its next usable sample, keeping its gyro bias
+  (:func:`~margtrack.live.isolation.restart`);
+- *stale* samples (``Frames.stale``, all-zero input): the sensor's output is held at its
+  last orientation instead of integrating anything;
+- *failures*: a sensor whose output is not finite is re-initialised and its output held
+  (``reinitialised``); if the S-sensor run raises, the batch is run sensor by sensor and
+  only the sensors that raise are re-initialised (:func:`~margtrack.live.isolation.run_each`).
+  The reason is kept per sensor in ``errors``.
+
+Counted per sensor: ``processed`` (samples run, not held), ``flagged`` (processed samples
+with a data flag of the input policy), ``reinitialised``.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+from numpy.typing import NDArray
+
+from margtrack.estimator.contract import Estimator
+from margtrack.estimator.flags import DATA_FLAGS, Flag
+from margtrack.live.assembler import Frames
+from margtrack.live.isolation import reinitialise, restart, run_each
+
+Array = NDArray[np.float64]
+
+__all__ = ["SensorFilters"]
+
+
+class SensorFilters:
+    """One estimator for S sensors with per-sensor isolation (module docstring)."""
+
+    def __init__(self, estimator: Estimator, n_sensors: int) -> None:
+        self.estimator = estimator
+        self.n_sensors = n_sensors
+        self.q_last = np.tile([1.0, 0.0, 0.0, 0.0], (n_sensors, 1))
+        self.processed = np.zeros(n_sensors, dtype=np.int64)
+        self.flagged = np.zeros(n_sensors, dtype=np.int64)
+        self.reinitialised = np.zeros(n_sensors, dtype=np.int64)
+        self.errors = [""] * n_sensors
+
+    def run(self, frames: Frames) -> tuple[Array, NDArray[np.uint16]]:
+        """Orientations (S, N, 4) and flags (S, N) of one batch (module docstring)."""
+        n = frames.n_frames
+        cuts = [0]
+        if frames.restart is not None:
+            cuts += [int(k) for k in np.flatnonzero(frames.restart.any(axis=0)) if k > 0]
+        cuts.append(n)
+        q_parts, flag_parts = [], []
+        for a, b in itertools.pairwise(cuts):
+            if frames.restart is not None:
+                restart(self.estimator, np.flatnonzero(frames.restart[:, a]).tolist())
+            q, flags = self._segment(frames, a, b)
+            q_parts.append(q)
+            flag_parts.append(flags)
+        q = q_parts[0] if len(q_parts) == 1 else np.concatenate(q_parts, axis=1)
+        flags = flag_parts[0] if len(flag_parts) == 1 else np.concatenate(flag_parts, axis=1)
+        used = ~frames.held
+        self.processed += used.sum(axis=1)
+        data = (flags & np.uint16(DATA_FLAGS)) != 0
+        self.flagged += np.count_nonzero(data & used, axis=1)
+        return q, flags
+
+    def _segment(self, frames: Frames, a: int, b: int) -> tuple[Array, NDArray[np.uint16]]:
+        t = frames.t_s[a:b]
+        gyr, acc = frames.gyr[:, a:b], frames.acc[:, a:b]
+        mag = None if frames.mag is None else frames.mag[:, a:b]
+        try:
+            est = self.estimator.run(gyr=gyr, acc=acc, mag=mag, t=t, check_units=False)
+            q, flags = est.quat, est.flags
+            if flags is None:
+                flags = np.zeros(q.shape[:2], dtype=np.uint16)
+        except Exception:  # one sensor's fault: find it, the others go on
+            q, flags = run_each(self.estimator, t, gyr, acc, mag, self.q_last,
+                                lambda s, e: self._failed(s, f"filter raised {e!r}"))
+        bad = ~np.isfinite(q).all(axis=(1, 2))
+        if bad.any():
+            q = q.copy()
+            for s in np.flatnonzero(bad):
+                s = int(s)
+                self._hold_non_finite(q[s], self.q_last[s])
+                flags[s] |= np.uint16(Flag.INITIALISING)
+                reinitialise(self.estimator, s, q[s, -1])
+                self._failed(s, "non-finite orientation")
+        if frames.stale is not None:
+            stale = frames.stale[:, a:b]
+            rows = np.flatnonzero(stale.any(axis=1))
+            if rows.size:
+                q = q.copy()
+                for s in rows:
+                    held = self.q_last[s]
+                    for k in range(b - a):
+                        if stale[s, k]:
+                            q[s, k] = held
+                        held = q[s, k]
+        self.q_last = q[:, -1].copy()
+        return q, flags
+
+    def _failed(self, sensor: int, why: str) -> None:
+        self.reinitialised[sensor] += 1
+        self.errors[sensor] = why
+
+    @staticmethod
+    def _hold_non_finite(q: Array, q_before: Array) -> None:
+        """Replace non-finite rows of ``q`` (N, 4) by the last finite one (in place)."""
+        held = q_before if np.all(np.isfinite(q_before)) else np.array([1.0, 0.0, 0.0, 0.0])
+        for k in range(q.shape[0]):
+            if np.all(np.isfinite(q[k])):
+                held = q[k]
+            else:
+                q[k] = held
