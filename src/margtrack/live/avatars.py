@@ -62,12 +62,14 @@ class Avatars:
     people : person labels (``""`` for a single unnamed person).
     index : (A, K) int, sensor index of person ``a``'s segment ``k`` (skeleton order).
     root_positions_m : (A, 3) m, root joint of each person in the reference pose.
+    height_m : body height the skeleton was built for, m (sizes the avatar's volume).
     """
 
     skeleton: body.Skeleton
     people: tuple[str, ...]
     index: NDArray[np.intp]
     root_positions_m: Array
+    height_m: float = 1.75
 
     @property
     def n_people(self) -> int:
@@ -111,7 +113,7 @@ class Avatars:
                  + spacing_m * (grid[:, :1] * right + grid[:, 1:] * forward))
         index.setflags(write=False)
         roots.setflags(write=False)
-        return cls(skeleton, people, index, roots)
+        return cls(skeleton, people, index, roots, float(height_m))
 
     def identity(self) -> list[body.Calibration]:
         """One :func:`identity_calibration` per person."""

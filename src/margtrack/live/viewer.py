@@ -1,21 +1,32 @@
-"""The live 3-D view in a browser page, served on localhost by ``viser``.
+"""The live 3-D view in a browser page, served on this machine by ``viser``.
 
-What the page shows (000's display, in a browser): every person's segments as bones
-(joint to distal end, and the parent's distal end to the joint, e.g. neck to shoulder;
-left side blue, right red) with a small frame
-per segment, or, without a body model, one frame per sensor; a status panel ("poses shown:
-N", data time, latency, processing time, drops, calibration); the sensor list with health
-(rate, drops, magnetic-norm check); one control per numeric filter parameter (changes go to
-:meth:`Engine.set_params` and take effect at the next sample; a rejected value is reported
-and the control reset); a "Calibrate in reference pose" button with a countdown; and
-"Start recording" / "Stop recording and export" writing a BVH and a joint-angle CSV.
+What the page shows (000's display, in a browser, issue 17 part 11 and issue 18 part 7):
+
+- the scene (:mod:`margtrack.live.viewer_scene`): every person as solids (capsule limbs, a
+  shoulder girdle, trunk and pelvis boxes, a head; left side blue, right red), the camera
+  framed on them at start; without a body model one frame per sensor;
+- *Status*: poses shown, session time (from 0 at the first frame), latency, processing
+  time, drops, calibration, the engine's error; when a replay ends, a notice, a *Loop
+  replay* option and a *Replay again* button;
+- *Joint angles*: the first person's joint angles now, and a scrolling plot of the joints
+  ticked under it (first component, deg, over the last 10 s);
+- *Calibration and recording*: "Calibrate in reference pose" with a countdown;
+  "Start recording" / "Stop recording and export" writing BVH, joint-angle CSV and OpenSim
+  ``.sto`` (:func:`~margtrack.live.viewer_panels.export_recording`), the files' full paths
+  listed in the panel;
+- *Filter*: one control per numeric parameter, labelled from its declaration (label with
+  unit, help and bounds as hint); changes go to :meth:`Engine.set_params` and take effect
+  at the next sample; a rejected value is reported and the control reset;
+- *Sensors*: health in body order (the skeleton's segment order), with the stale state and
+  the loss / gap / resync / flag counters when the engine reports them.
 
 Threads: the engine's worker publishes poses; the viewer's own thread
 ("margtrack-live-viewer") sends the latest one to the browser at the display rate and the
 panels at about 4 Hz; viser's server thread runs the GUI callbacks. :class:`LiveSession`
-owns all three and stops them in :meth:`LiveSession.stop`.
+owns all three and stops them in :meth:`LiveSession.stop`. Who may connect:
+:mod:`margtrack.live.security`.
 
-``viser`` is imported only here (``pip install viser``; an extra of margtrack).
+``viser`` is imported only here and in the modules above (an extra of margtrack).
 """
 
 from __future__ import annotations
@@ -25,121 +36,86 @@ import dataclasses
 import math
 import threading
 import time
-from collections.abc import Iterable, Mapping
+import warnings
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from margtrack import frames as frames_mod
+from margtrack import body
 from margtrack.body.offsets import Heading
-from margtrack.estimator.params import specs
+from margtrack.live import calibration_panel
 from margtrack.live.engine import Engine, Pose
 from margtrack.live.protocol import Source
+from margtrack.live.security import AccessPolicy, exposure_warning, guarded_viser_server, page_url
+from margtrack.live.viewer_controls import JointPlot, ParamControls
+from margtrack.live.viewer_panels import JointTrace, export_recording, sensor_order, sensor_table
+from margtrack.live.viewer_scene import AvatarScene
 
 Array = NDArray[np.float64]
 
 __all__ = ["LiveSession", "LiveViewer", "run_live"]
 
 _PANEL_PERIOD_S = 0.25
-_MAX_SENSOR_ROWS = 24
-_COLORS = {"left": (40, 110, 220), "right": (220, 60, 50), "": (90, 90, 90)}
 
 
-def _viser() -> Any:
-    try:
-        import viser
-    except ImportError:
-        raise ImportError("the live view needs viser: pip install viser (or margtrack[live])"
-                          ) from None
-    return viser
+def _rewound(source: Source) -> Source | None:
+    """A fresh copy of a replay (same data, speed, loop flag) to play again, else None."""
+    from margtrack.live.replay import ReplaySource
 
-
-def _display(frame: str, p: Array | None = None, q: Array | None = None
-             ) -> tuple[Array | None, Array | None]:
-    """Positions and orientations in the page's z-up world (ENU)."""
-    if frame == "ENU":
-        return p, q
-    p2 = None if p is None else np.stack([p[..., 1], p[..., 0], -p[..., 2]], axis=-1)
-    return p2, None if q is None else frames_mod.convert(q, frame, "ENU")
-
-
-def _step(value: float) -> float:
-    return 10.0 ** (math.floor(math.log10(abs(value))) - 1) if value else 0.01
+    if type(source) is not ReplaySource:
+        return None
+    return ReplaySource(source.t_s, source.gyr, source.acc, source.mag,
+                        source.info.sensor_names, speed=source.speed,
+                        chunk_frames=source.chunk_frames, loop=source.loop,
+                        description=source.info.description)
 
 
 class LiveViewer:
-    """Scene and GUI of one engine on one viser server (module docstring)."""
+    """Scene and GUI of one engine on one viser server (module docstring).
+
+    source : the engine's source, for the replay options (loop, replay again), or None.
+    new_engine : builds an engine like ``engine`` (not started); with a replay ``source``,
+        *Replay again* runs one on a rewound copy of the replay, with the parameters in force.
+    """
 
     def __init__(self, engine: Engine, server: Any, out_dir: str | Path | None = None,
-                 countdown_s: float = 3.0) -> None:
+                 countdown_s: float = 3.0, source: Source | None = None,
+                 new_engine: Callable[[], Engine] | None = None) -> None:
         self.engine = engine
         self.server = server
+        self.source = source
         self.out_dir = Path(out_dir) if out_dir is not None else Path.cwd() / "margtrack_live"
         self.countdown_s = float(countdown_s)
         self.poses_shown = 0
         self.exported: list[Path] = []
+        self._new_engine = new_engine if source is not None and _rewound(source) else None
         self._lock = threading.Lock()
         self._pose: Pose | None = None
         self._new = threading.Event()
         self._stop = threading.Event()
         self._message = ""
-        self._controls: dict[str, Any] = {}
-        self._reverting = False
-        self._build_scene()
+        self._t0: float | None = None
+        self._session_s = math.nan
+        self._angles: body.JointAngles | None = None
+        self._trace = JointTrace()
+        self._order = sensor_order(engine.info.sensor_names, engine.avatars)
+        self.scene = AvatarScene(server, engine.avatars, engine.info.n_sensors, engine.frame)
+        self._joint_names = self._joints()
         self._build_gui()
         self._unsubscribe = engine.subscribe(self._on_pose)
         self._thread = threading.Thread(target=self._loop, name="margtrack-live-viewer",
                                         daemon=True)
         self._thread.start()
 
-    # -- scene -------------------------------------------------------------------------------
-    def _build_scene(self) -> None:
-        scene = self.server.scene
-        scene.add_grid("/floor", width=8.0, height=8.0, cell_size=0.5)
-        self.server.initial_camera.position = (2.0, -2.6, 1.6)
-        self.server.initial_camera.look_at = (0.0, 0.0, 0.9)
+    def _joints(self) -> tuple[str, ...]:
         av = self.engine.avatars
-        if av is not None:
-            sk = av.skeleton
-            sides = [n.split("_")[0] if n.split("_")[0] in _COLORS else "" for n in sk.names]
-            seg_colors = np.array([_COLORS[s] for s in sides], dtype=np.uint8)
-            colors = np.concatenate([seg_colors[1:], seg_colors])  # links, then bones
-            self._colors = np.tile(colors[:, None, :], (av.n_people, 2, 1))
-            n_lines = av.n_people * (2 * len(sk) - 1)
-            self._bones = scene.add_line_segments(
-                "/avatars/bones", np.zeros((n_lines, 2, 3)), self._colors, thickness=0.035)
-            n_seg = av.n_people * len(sk)
-            self._frames = scene.add_batched_axes(
-                "/avatars/frames", np.tile([1.0, 0, 0, 0], (n_seg, 1)), np.zeros((n_seg, 3)),
-                axes_length=0.08, axes_radius=0.008)
-        else:
-            n = self.engine.info.n_sensors
-            cols = math.ceil(math.sqrt(n))
-            self._sensor_positions = np.array(
-                [(0.6 * (i % cols), 0.6 * (i // cols), 1.0) for i in range(n)], dtype=float)
-            self._frames = scene.add_batched_axes(
-                "/sensors", np.tile([1.0, 0, 0, 0], (n, 1)), self._sensor_positions,
-                axes_length=0.25, axes_radius=0.02)
-
-    def _show(self, pose: Pose) -> None:
-        av = self.engine.avatars
-        with self.server.atomic():
-            if av is not None and pose.joints_m is not None:
-                parents = av.skeleton.parents[1:]
-                joints, ends = pose.joints_m, pose.ends_m
-                links = np.stack([ends[:, parents], joints[:, 1:]], axis=2)
-                bones = np.stack([joints, ends], axis=2)
-                lines = np.concatenate([links, bones], axis=1).reshape(-1, 2, 3)
-                lines, q = _display(self.engine.frame, lines, pose.q_segment.reshape(-1, 4))
-                self._bones.points = lines.astype(np.float32)
-                mid, _ = _display(self.engine.frame, (0.5 * (joints + ends)).reshape(-1, 3))
-                self._frames.batched_positions = mid.astype(np.float32)
-                self._frames.batched_wxyzs = q.astype(np.float32)
-            else:
-                _, q = _display(self.engine.frame, None, pose.q_sensor)
-                self._frames.batched_wxyzs = q.astype(np.float32)
+        if av is None:
+            return ()
+        q = np.tile([1.0, 0.0, 0.0, 0.0], (len(av.skeleton), 1))
+        return tuple(body.joint_angles(av.skeleton, q).names)
 
     # -- GUI ---------------------------------------------------------------------------------
     def _build_gui(self) -> None:
@@ -149,55 +125,59 @@ class LiveViewer:
                          f"`{self.engine.method}`")
         with gui.add_folder("Status"):
             self._status = gui.add_markdown("poses shown: 0")
+            self._notice = gui.add_markdown("", visible=False)
+            if self.source is not None and hasattr(self.source, "loop"):
+                self._loop_box = gui.add_checkbox(
+                    "Loop replay", initial_value=bool(self.source.loop),
+                    hint="Start the replay again after its last frame (timestamps continue).")
+                self._loop_box.on_update(lambda _: self._set_loop(self._loop_box.value))
+            if self._new_engine is not None:
+                self._again = gui.add_button("Replay again", visible=False)
+                self._again.on_click(lambda _: self._replay_again())
+        self._joint_plot: JointPlot | None = None
+        if self._joint_names:
+            with gui.add_folder("Joint angles"):
+                self._joint_plot = JointPlot(self.server, self._joint_names, self._trace)
         with gui.add_folder("Calibration and recording"):
             self._calibrate = gui.add_button("Calibrate in reference pose",
                                              disabled=self.engine.avatars is None)
             self._calibrate.on_click(lambda _: self._start_countdown())
             self._record = gui.add_button("Start recording", disabled=self.engine.avatars is None)
             self._record.on_click(lambda _: self._toggle_recording())
+            self._exports = gui.add_markdown(f"exports go to `{self.out_dir.resolve()}`")
         with gui.add_folder(f"Filter: {self.engine.method}"):
-            for spec in specs(self.engine.params):
-                value = getattr(self.engine.params, spec.name)
-                if spec.name == "frame" or value is None or isinstance(value, (tuple, str)):
-                    continue
-                if isinstance(value, bool):
-                    handle = gui.add_checkbox(spec.label, initial_value=value, hint=spec.help)
-                else:
-                    low = spec.ge if spec.ge is not None else spec.gt
-                    high = spec.le if spec.le is not None else spec.lt
-                    handle = gui.add_number(
-                        spec.label,
-                        initial_value=value,
-                        min=low,
-                        max=high,
-                        step=1 if isinstance(value, int) else _step(value),
-                        hint=f"{spec.help} ({spec.bounds_text()} {spec.unit})".strip(),
-                    )
-                handle.on_update(self._param_callback(spec.name, handle))
-                self._controls[spec.name] = handle
+            self._axes_box = gui.add_checkbox("show segment axes", initial_value=False)
+            self._axes_box.on_update(lambda _: self.scene.set_axes_visible(self._axes_box.value))
+            self._params = ParamControls(gui, lambda: self.engine, self._say)
         with gui.add_folder("Sensors"):
             self._sensors = gui.add_markdown("")
 
-    def _param_callback(self, name: str, handle: Any) -> Any:
-        def changed(event: Any) -> None:
-            if self._reverting:
-                return
-            try:
-                self.engine.set_params(**{name: handle.value})
-            except (ValueError, TypeError) as exc:
-                self._message = f"{name} rejected: {exc}"
-                if getattr(event, "client", None) is not None:
-                    event.client.add_notification(f"{name} rejected", str(exc),
-                                                  auto_close_seconds=5.0, color="red")
-                self._reverting = True
-                try:
-                    handle.value = getattr(self.engine.params, name)
-                finally:
-                    self._reverting = False
-            else:
-                self._message = f"{name} = {handle.value} from the next sample"
+    def _set_loop(self, value: bool) -> None:
+        if self.source is not None:
+            self.source.loop = bool(value)  # type: ignore[attr-defined]
+            self._message = "the replay loops" if value else "the replay stops at its end"
 
-        return changed
+    def _replay_again(self) -> None:
+        """A new engine, with the parameters in force, on a rewound copy of the replay."""
+        fresh = _rewound(self.source) if self.source is not None else None
+        if self._new_engine is None or fresh is None or self.engine.running:
+            return
+        old, new = self.engine, self._new_engine()
+        new.set_params(**{f.name: getattr(old.params, f.name)
+                          for f in dataclasses.fields(old.params) if f.name != "frame"})
+        self._unsubscribe()
+        old.stop()
+        self._t0 = None
+        self._trace.clear()
+        self.engine, self.source = new, fresh
+        self._unsubscribe = new.subscribe(self._on_pose)
+        new.start(fresh)
+        self._again.visible = False
+        self._notice.visible = False
+        self._message = f"replaying again (the previous run had {old.stats().frames} frames)"
+
+    def _say(self, message: str) -> None:
+        self._message = message
 
     def _start_countdown(self) -> None:
         def countdown() -> None:
@@ -216,41 +196,64 @@ class LiveViewer:
     def _toggle_recording(self) -> None:
         if not self.engine.recording:
             self.engine.start_recording()
+            calibration_panel.page_recording(self, True)  # the raw stream too
             self._record.label = "Stop recording and export"
             self._message = "recording"
             return
         self._record.label = "Start recording"
         rec = self.engine.stop_recording()
         try:
-            stem = time.strftime("live_%Y%m%d_%H%M%S")
-            self.exported = rec.export(self.out_dir, stem)
-            self._message = "exported " + ", ".join(str(p) for p in self.exported)
-        except ValueError as exc:
+            raw = calibration_panel.page_recording(self, False)  # raw stream, .hdf5
+            self.exported = [*export_recording(rec, self.out_dir), *([raw] if raw else [])]
+        except (ValueError, OSError) as exc:
             self._message = f"export failed: {exc}"
+            self._exports.content = f"**export failed:** {exc}"
+        else:
+            self._message = f"exported {len(self.exported)} files"
+            self._exports.content = "exported:\n\n" + "\n".join(
+                f"- `{path}`" for path in self.exported)
 
-    def _panels(self, pose: Pose | None) -> None:
-        st = self.engine.stats()
-        t = f"{pose.t_s:.2f} s" if pose is not None else "-"
+    def _session_time(self, pose: Pose) -> float:
+        """Seconds since the session's first frame (the engine's, when it provides it)."""
+        if hasattr(self.engine, "session_origin_s"):  # the engine's times are session times
+            return pose.t_s
+        if self._t0 is None:  # an engine on device time: from the first pose shown
+            self._t0 = pose.t_s
+        return pose.t_s - self._t0
+
+    def _panels(self) -> None:
+        engine = self.engine
+        st = engine.stats()
+        t = f"{self._session_s:.2f} s" if math.isfinite(self._session_s) else "-"
         self._status.content = (
             f"poses shown: {self.poses_shown}  \n"
-            f"data time {t} · {st.frames} frames  \n"
+            f"session time {t} · {st.frames} frames  \n"
             f"latency p50 {st.latency_p50_s * 1e3:.1f} ms · p95 {st.latency_p95_s * 1e3:.1f} ms"
             f"  \nprocessing {st.processing_s_per_sample * 1e6:.2f} µs/sample · "
             f"dropped {st.dropped_samples} · late frames {st.late_frames}  \n"
             f"calibration: {st.calibration}  \n{self._message}"
             + (f"  \n**{st.error}**" if st.error else "")
         )
-        h = st.health
-        rows = ["| sensor | Hz | drops | \\|m\\|/\\|m₀\\| |", "|---|---|---|---|"]
-        for i in range(min(len(h.names), _MAX_SENSOR_ROWS)):
-            ratio = h.mag_norm_ratio[i]
-            mark = "–" if not np.isfinite(ratio) else ("✓" if h.mag_ok[i] else "✗")
-            rows.append(f"| {h.names[i]} | {h.rate_hz[i]:.0f} | {h.dropped[i]} | "
-                        f"{ratio:.2f} {mark} |")
-        if len(h.names) > _MAX_SENSOR_ROWS:
-            rows.append(f"| … {len(h.names) - _MAX_SENSOR_ROWS} more | | "
-                        f"{int(h.dropped.sum())} | {int(h.mag_ok.sum())} ✓ |")
-        self._sensors.content = "\n".join(rows)
+        # the engine's own failure (B1's engine_error), else an error text naming a stop
+        fatal = getattr(st, "engine_error", None) or (
+            st.error if st.error.startswith("engine stopped") else None)
+        ended = engine.wait(0)  # the source is exhausted or the engine stopped
+        if ended and not self._notice.visible:
+            if fatal:
+                self._notice.content = (f"**{fatal}**: the page shows its last pose; restart "
+                                        "`margtrack live`.")
+            else:
+                what = "Replay" if hasattr(self.source, "loop") else "The source"
+                self._notice.content = (
+                    f"**{what} ended** at session time {t} ({st.frames} frames)."
+                    + (" Press *Replay again*, ticking *Loop replay* to play it in a loop."
+                       if self._new_engine is not None else ""))
+            self._notice.visible = True
+            if self._new_engine is not None and not fatal:
+                self._again.visible = True
+        self._sensors.content = sensor_table(st.health, self._order)
+        if self._joint_plot is not None and self._angles is not None:
+            self._joint_plot.update(self._angles)
 
     # -- threads -----------------------------------------------------------------------------
     def _on_pose(self, pose: Pose) -> None:
@@ -265,29 +268,50 @@ class LiveViewer:
             self._new.clear()
             with self._lock:
                 pose, self._pose = self._pose, None
-            if pose is not None:
-                self._show(pose)
-                self.poses_shown += 1
-            now = time.perf_counter()
-            if now >= next_panel:
-                next_panel = now + _PANEL_PERIOD_S
-                self._panels(pose if pose is not None else self.engine.latest)
+            try:
+                if pose is not None:
+                    self._session_s = self._session_time(pose)
+                    self.scene.show(pose)
+                    self.poses_shown += 1
+                    if self._joint_names and pose.q_segment is not None:
+                        self._angles = body.joint_angles(self.engine.avatars.skeleton,
+                                                         pose.q_segment[0])
+                        self._trace.add(self._session_s, self._angles)
+                now = time.perf_counter()
+                if now >= next_panel:
+                    next_panel = now + _PANEL_PERIOD_S
+                    self._panels()
+            except Exception as exc:  # a display failure must not end the page's updates
+                self._message = f"display error: {exc!r}"
 
     def close(self) -> None:
-        """Stop updating the page (the server is closed by its owner)."""
+        """Stop updating the page, attached panels included (the server is closed by its
+        owner)."""
         self._unsubscribe()
         self._stop.set()
         self._thread.join(2.0)
+        panel = getattr(self, "calibration_panel", None)  # calibration_panel.attach's
+        if panel is not None:
+            panel.close()
 
 
 @dataclasses.dataclass
 class LiveSession:
-    """A running engine, its viewer and the viser server; :meth:`stop` ends them all."""
+    """A running engine, its viewer and the viser server; :meth:`stop` ends them all.
 
-    engine: Engine
+    url : the page's address, with ``?token=...`` when the page needs one; token : that
+    token (None on loopback without one).
+    """
+
     viewer: LiveViewer
     server: Any
     url: str
+    token: str | None = None
+
+    @property
+    def engine(self) -> Engine:
+        """The engine now shown (a new one after *Replay again*)."""
+        return self.viewer.engine
 
     def stop(self) -> None:
         """Stop the viewer, the engine (closing the source) and the server."""
@@ -302,12 +326,17 @@ class LiveSession:
         self.stop()
 
 
+def _warn(message: str) -> None:
+    warnings.warn(message, UserWarning, stacklevel=3)
+
+
 def run_live(
     source: Source,
     method: str = "default",
     port: int = 8080,
     *,
     host: str = "127.0.0.1",
+    token: str | bool | None = None,
     params: Mapping[str, Any] | Iterable[str] = (),
     display_hz: float = 25.0,
     height_m: float = 1.75,
@@ -317,33 +346,56 @@ def run_live(
     out_dir: str | Path | None = None,
     block: bool = True,
     duration_s: float | None = None,
+    announce: Callable[[LiveSession], None] | None = None,
+    warn: Callable[[str], None] = _warn,
+    record: str | Path | None = None,
 ) -> LiveSession:
-    """Track ``source`` live and serve the 3-D view at ``http://host:port``.
+    """Track ``source`` live and serve the 3-D view at ``session.url``.
 
     Parameters
     ----------
     source : any :class:`~margtrack.live.protocol.Source` (simulator, replay, UDP, serial).
     method, params : the filter (registered name) and its parameters.
-    port : TCP port of the page (0: a free one, see ``session.url``); host : address bound
-        (``127.0.0.1``: this machine only).
+    port : TCP port of the page (0: a free one, see ``session.url``).
+    host : address bound; ``127.0.0.1`` (default): this machine only. Any other address
+        needs a token and ``warn`` is called with what it exposes.
+    token : None: a random token off loopback, none on it; True: a random one anyway;
+        a string: that token (12+ URL-safe characters); False: none (refused off loopback).
+        See :mod:`margtrack.live.security`.
     display_hz, height_m, calibrate_at_start, heading, forward_axis : see :class:`Engine`.
     out_dir : where "Stop recording and export" writes (default ``./margtrack_live``).
     block : serve until Ctrl-C (or ``duration_s``), then stop everything and return the
         stopped session; ``False`` returns the running session at once (call ``stop()``).
     duration_s : with ``block``, stop after this many seconds.
+    announce : called with the running session once the page is served (e.g. to print
+        ``session.url``, which holds the real port and the token).
+    warn : called with the exposure warning of a non-loopback ``host`` (default: a
+        ``UserWarning``).
+    record : start a raw recording with the engine (``viewer.raw_recorder``; the caller
+        saves it, :func:`margtrack.live.calibration_panel.attach`).
     """
-    viser = _viser()
-    engine = Engine(source.info, method, params, height_m=height_m, display_hz=display_hz,
-                    heading=heading, forward_axis=forward_axis,
-                    calibrate_at_start=calibrate_at_start)
-    server = viser.ViserServer(host=host, port=port, verbose=False)
+    policy = AccessPolicy.for_bind(host, token)
+    if (message := exposure_warning(host)) is not None:
+        warn(message)
+
+    def new_engine() -> Engine:
+        return Engine(source.info, method, params, height_m=height_m, display_hz=display_hz,
+                      heading=heading, forward_axis=forward_axis,
+                      calibrate_at_start=calibrate_at_start)
+
+    engine = new_engine()
+    server = guarded_viser_server(host, port, policy)
     try:
-        viewer = LiveViewer(engine, server, out_dir)
+        viewer = LiveViewer(engine, server, out_dir, source=source, new_engine=new_engine)
+        source = calibration_panel.attach(viewer, source, record)  # guided calibration panel
         engine.start(source)
     except BaseException:
         server.stop()
         raise
-    session = LiveSession(engine, viewer, server, f"http://{host}:{server.get_port()}")
+    session = LiveSession(viewer, server, page_url(host, server.get_port(), policy.token),
+                          policy.token)
+    if announce is not None:
+        announce(session)
     if not block:
         return session
     end = math.inf if duration_s is None else time.perf_counter() + duration_s
@@ -354,3 +406,4 @@ def run_live(
     finally:
         session.stop()
     return session
+
