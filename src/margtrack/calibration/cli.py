@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import itertools
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -127,17 +126,37 @@ def simulate(
 @calibrate_app.command()
 @_friendly
 def guided(
-    source: Annotated[Path, typer.Option("--source", "-s", help="Recording of the procedure.")],
+    source: Annotated[Path | None, typer.Option(
+        "--source", "-s", help="Recording of the procedure (offline).")] = None,
     output: Annotated[Path, typer.Option("--output", "-o", help="Calibration JSON.")] = Path(
         "calibration.json"
     ),
     quiet: Annotated[bool, typer.Option(help="Print only the result.")] = False,
+    udp: Annotated[int | None, typer.Option(
+        "--udp", help="Live: lines t,sensor,gx,...,mz on this UDP port (127.0.0.1).")] = None,
+    serial: Annotated[str | None, typer.Option(
+        "--serial", help="Live: lines from this serial port.")] = None,
+    sensors: Annotated[str, typer.Option(
+        help="Live: the stream's sensors, a count or comma-separated names.")] = "1",
+    sensor: Annotated[str | None, typer.Option(
+        help="Live: the sensor to calibrate (name or index; default the first).")] = None,
+    timeout: Annotated[float, typer.Option(
+        help="Live: give up after this many seconds (wall clock).")] = 600.0,
+    force: Annotated[bool, typer.Option(
+        "--force", help="Live: replace an existing --output file.")] = False,
 ) -> None:
-    """Walk through 000's 18 steps on a recording, printing each instruction as it comes."""
+    """Walk through 000's 18 steps on a recording, or live on a sensor (--udp/--serial),
+    printing each instruction, a progress bar for each hold and what is wrong."""
     from margtrack.calibration.calibration_file import save_calibration
     from margtrack.calibration.guided import GuidedCalibration
 
     console = Console()
+    if (udp is not None or serial is not None) == (source is not None) or (
+            udp is not None and serial is not None):
+        raise ValueError("give exactly one of --source FILE, --udp PORT or --serial DEVICE")
+    if source is None:
+        _guided_live(udp, serial, sensors, sensor, timeout, output, force, quiet, console)
+        return
     rec = _read(source)
     if rec.mag is None:
         raise ValueError(f"{source} has no magnetometer; the procedure needs one (steps 15-18)")
@@ -155,6 +174,14 @@ def guided(
             break
     result = machine.result()
     cal = result.calibration
+    _guided_table(result, console)
+    save_calibration(dataclasses.replace(cal, source=f"guided procedure on {source.name}"),
+                     output)
+    console.print(f"wrote {output}")
+
+
+def _guided_table(result: Any, console: Console) -> None:
+    cal = result.calibration
     table = _table("guided calibration (000 Appendix B)", ["figure", "x", "y", "z"])
     table.add_row("gyro scale factor, eq. 5", *_fmt(result.gyro_scale.scale_factor, 6))
     _triad_rows(table, "gyr", cal.gyr, "deg/s", 180.0 / math.pi)
@@ -163,7 +190,8 @@ def guided(
     _triad_rows(table, "acc", cal.acc, "m/s²")
     table.add_row("mag null, eq. 3 (µT)", *_fmt(result.min_max.null_ut))
     table.add_row("mag scale, eq. 4", *_fmt(result.min_max.scale, 6))
-    assert cal.mag is not None and cal.reference is not None
+    if cal.mag is None or cal.reference is None:
+        raise ValueError("the procedure produced no magnetometer calibration")
     _triad_rows(table, "mag", cal.mag, "µT")
     ref = cal.reference
     table.add_row("reference acc (m/s²)", *_fmt(ref.acc_m_s2))
@@ -173,9 +201,69 @@ def guided(
                   f"dip {ref.dip_deg:.2f} deg, x from north {ref.heading_offset_deg:+.2f} deg")
     for note in cal.notes:
         console.print(f"- {note}")
-    save_calibration(dataclasses.replace(cal, source=f"guided procedure on {source.name}"),
-                     output)
-    console.print(f"wrote {output}")
+
+
+def _guided_live(udp: int | None, serial: str | None, sensors: str, sensor: str | None,
+                 timeout: float, output: Path, force: bool, quiet: bool,
+                 console: Console) -> None:
+    """The procedure live on one sensor of a UDP or serial line stream (terminal display:
+    events as they come and, every 0.5 s of data, the step, a hold progress bar and what is
+    wrong; a terminal shows the status line in place)."""
+    import time
+
+    from margtrack.calibration.live_procedure import LiveProcedure, save_result
+    from margtrack.io.safe_output import check_output
+    from margtrack.live.calibration_panel import feed_chunks
+
+    check_output(output, force=force)  # before the person spends minutes on the procedure
+    names = ([f"sensor{i}" for i in range(int(sensors))] if sensors.strip().isdigit()
+             else [n.strip() for n in sensors.split(",") if n.strip()])
+    if not names:
+        raise ValueError("--sensors must be a count or comma-separated names")
+    key = names[0] if sensor is None else sensor
+    index = int(key) if key.isdigit() else (names.index(key) if key in names else -1)
+    if not 0 <= index < len(names):
+        raise ValueError(f"--sensor {key!r} is not one of {', '.join(names)}")
+    if udp is not None:
+        from margtrack.live.udp import UdpSource
+
+        src: Any = UdpSource(names, port=udp)
+    else:
+        from margtrack.live.serial_port import SerialSource
+
+        src = SerialSource(str(serial), names)
+    procedure = LiveProcedure()
+    style = {"instruction": "bold cyan", "done": "green", "warning": "yellow", "finished": "bold"}
+    console.print(f"guided calibration of {names[index]} on {src.info.description}")
+    console.print(f"[{style['instruction']}]{procedure.status.instruction}[/]")
+    end = time.perf_counter() + timeout
+    next_line = 0.0
+    src.open()
+    try:
+        while not procedure.finished and time.perf_counter() < end:
+            for e in feed_chunks(procedure, src.poll(0.1), index):
+                if not quiet:
+                    console.print(f"{e.t_s:8.2f} s  [{style[e.kind]}]{escape(e.message)}[/]",
+                                  soft_wrap=True)
+            st = procedure.status
+            if not quiet and st.samples and st.t_s >= next_line and not st.finished:
+                next_line = st.t_s + 0.5
+                console.print(escape(st.line()), end="\r" if console.is_terminal else "\n",
+                              soft_wrap=True)
+    finally:
+        src.close()
+    if procedure.rejected or src.stats.malformed:
+        console.print(f"rejected: {src.stats.malformed} malformed lines, {procedure.rejected} "
+                      f"samples ({procedure.last_rejection or src.stats.last_error})")
+    if not procedure.finished:
+        raise ValueError(f"no finished procedure after {timeout:g} s; still waiting for "
+                         f"{procedure.status.instruction}")
+    result = procedure.result()
+    _guided_table(result, console)
+    path = save_result(result, output, source=f"live guided procedure on {names[index]}",
+                       force=force)
+    console.print(f"wrote {path} (apply it: margtrack live ... --sensor-calibration "
+                  f"{names[index]}={path})", soft_wrap=True)
 
 
 @calibrate_app.command()
@@ -199,29 +287,18 @@ def accel(
     for k, ((a, b), m) in enumerate(zip(segments, means, strict=True)):
         poses.add_row(str(k), f"{rec.t[a]:.1f}-{rec.t[b - 1]:.1f}", *_fmt(m))
     console.print(poses)
+    choice = acc_cal.choose_accel_model(means, gravity_m_s2)
     table = _table("accelerometer", ["figure", "x", "y", "z"])
-    candidates = []  # in order of preference: most parameters first
-    for fit_name, fit in (("known directions", acc_cal.fit_known_directions),
-                          ("norm", acc_cal.fit_norm)):
-        try:
-            result = fit(means, gravity_m_s2=gravity_m_s2)
-        except ValueError as exc:
-            console.print(f"{fit_name} fit: {escape(str(exc))}")
-            continue
+    for fit_name, result in choice.fits.items():
         _triad_rows(table, fit_name, result.triad(), "m/s²")
         table.add_row(f"{fit_name} RMS residual (m/s²)", f"{result.rms_residual_m_s2:.5f}", "", "")
-        candidates.append(result.triad())
-    try:
-        six = acc_cal.six_position(means, gravity_m_s2)
-        table.add_row("six-position null, eq. 1 (m/s²)", *_fmt(six.null_m_s2))
-        table.add_row("six-position scale, eq. 2", *_fmt(six.scale, 6))
-        candidates.append(six.triad())
-    except ValueError as exc:
-        console.print(f"six-position: {escape(str(exc))}")
+    if choice.six is not None:
+        table.add_row("six-position null, eq. 1 (m/s²)", *_fmt(choice.six.null_m_s2))
+        table.add_row("six-position scale, eq. 2", *_fmt(choice.six.scale, 6))
+    for fit_name, reason in choice.failures.items():
+        console.print(f"{fit_name}: {escape(reason)}")
     console.print(table)
-    chosen = candidates[0] if candidates else None
-    if chosen is None:
-        raise ValueError("no accelerometer model could be fitted: record each axis up and down")
+    chosen = choice.chosen
     console.print(f"calibration: {chosen.method}")
     _update(output, console, acc=chosen)
 
@@ -275,30 +352,17 @@ def gyro(
 
     console = Console()
     rec = _read(path)
-    segments = static_segments(rec)
-    if len(segments) < 2:
-        raise ValueError(f"found {len(segments)} still period(s); need a still start and turns "
-                         "between holds")
-    null = gyro_cal.gyro_null(rec.gyr[segments[0][0]:segments[0][1]])
-    turns = []
-    for (_, stop), (start, _) in itertools.pairwise(segments):
-        s = slice(stop - 1, start + 1)
-        angles = np.degrees(gyro_cal.integrate_rotation(rec.t[s], rec.gyr[s], null.null_rad_s))
-        axis = int(np.argmax(np.abs(angles)))
-        known = angle_deg * round(angles[axis] / angle_deg)
-        if known == 0.0 or abs(angles[axis] / known - 1.0) > tolerance:
-            console.print(f"skipped a turn of {np.round(angles, 1).tolist()} deg: not a "
-                          f"multiple of {angle_deg:g} deg about one axis")
-            continue
-        turns.append(gyro_cal.rotation_estimate(rec.t[s], rec.gyr[s], null.null_rad_s,
-                                                known, axis, tolerance))
+    found = gyro_cal.gyro_from_turns(rec.t, rec.gyr, static_segments(rec), angle_deg, tolerance)
+    for angles in found.skipped_deg:
+        console.print(f"skipped a turn of {np.round(angles, 1).tolist()} deg: not a "
+                      f"multiple of {angle_deg:g} deg about one axis")
+    null, turns, scale = found.null, found.rotations, found.scale
     table = _table("known turns (000 eq. 5)", ["turn", "axis", "known (deg)", "integrated (deg)",
                                                "scale factor"])
     for k, r in enumerate(turns):
         table.add_row(str(k), "xyz"[r.axis], f"{r.known_deg:+g}", f"{r.integrated_deg:+.3f}",
                       f"{r.scale_factor:.6f}")
     console.print(table)
-    scale = gyro_cal.gyro_scale(turns, null.null_rad_s)
     summary = _table("gyroscope", ["figure", "x", "y", "z"])
     summary.add_row("null (deg/s)", *_fmt(np.degrees(null.null_rad_s)))
     summary.add_row("null noise floor (deg/s)", *_fmt(np.degrees(null.noise_floor_rad_s), 3))
