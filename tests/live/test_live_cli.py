@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import threading
 
 import pytest
@@ -28,7 +29,8 @@ def test_headless_replay_of_the_xio_body_tracks_and_calibrates(xio_folder):
     assert result.exit_code == 0, result.output
     assert "7 sensors, method bachmann" in result.output
     assert "928 frames" in result.output  # the sensors' common span at 50 Hz
-    assert "calibration: calibrated on 917.43-918.41 s" in result.output
+    # session time: 0 at the first frame (device clock 917.43 s)
+    assert "calibration: calibrated on 0.00-0.98 s" in result.output
     assert not [t for t in threading.enumerate() if t.name.startswith("margtrack-live")]
 
 
@@ -62,6 +64,42 @@ def test_demo_serves_the_page_for_the_given_duration(tmp_path):
     result = runner.invoke(app, ["live", "--demo", "--preset", "lower", "--port", "0",
                                  "--duration", "1.0", "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
-    assert "serving http://127.0.0.1:0" in result.output
+    assert re.search(r"serving http://127\.0\.0\.1:\d+/ ", result.output), result.output
+    assert "?token=" not in result.output and "warning" not in result.output
     assert "frames" in result.output and "poses" in result.output
     assert not [t for t in threading.enumerate() if t.name.startswith("margtrack-live")]
+
+
+def test_page_on_every_interface_prints_the_warning_and_the_token_url(tmp_path):
+    """--host 0.0.0.0 binds every interface for 0.3 s only, then the session stops."""
+    pytest.importorskip("viser", reason="the live view needs viser (pip install viser)")
+    result = runner.invoke(app, ["live", "--demo", "--preset", "left_arm", "--port", "0",
+                                 "--host", "0.0.0.0", "--duration", "0.3",
+                                 "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert "warning:" in result.output and "every network interface" in result.output
+    assert re.search(r"serving http://\S+:\d+/\?token=[A-Za-z0-9_\-]{20,} ", result.output)
+
+
+def test_udp_host_binds_the_listener_there():
+    # 127.0.0.2 is loopback too (no warning) but not the default: the source reports it
+    result = runner.invoke(app, ["live", "--udp", "0", "--sensors", "2", "--udp-host",
+                                 "127.0.0.2", "--headless", "--duration", "0.2"])
+    assert result.exit_code == 0, result.output
+    assert "UDP 127.0.0.2:0: 2 sensors" in result.output
+    assert "warning" not in result.output
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--udp", "0", "--sensors", "2", "--udp-host", "sensors.example"],
+         "--udp-host must be an IP address of this machine"),
+        (["--demo", "--token", "short", "--port", "0", "--duration", "0.1"],
+         "12 to 256 characters"),
+    ],
+)
+def test_bad_security_options_exit_2_with_a_message(args, message):
+    result = runner.invoke(app, ["live", *args])
+    assert result.exit_code == 2
+    assert message in result.output

@@ -8,6 +8,10 @@ Mounted in :mod:`margtrack.cli` as ``app.command(name="live")(live_command)``. E
     margtrack live --udp 9000 --sensors 3      # lines "t,sensor,gx,...,mz" on 127.0.0.1:9000
     margtrack live --serial /dev/ttyUSB0 --sensors pelvis,left_thigh
     margtrack live --replay trial.hdf5 --speed inf --headless   # engine only, prints stats
+    margtrack live --udp 9000 --sensors 3 --headless --record session.hdf5  # raw stream
+    margtrack live --replay session.hdf5       # the session again, same poses
+    margtrack live --osc 9001 --sensors 3      # OSC /margtrack/<sensor>/imu (live/osc.py)
+    margtrack live --lsl MyImus                # an LSL stream named MyImus (live/lsl.py)
 
 The page is served on http://127.0.0.1:PORT (8080 by default); stop with Ctrl-C.
 """
@@ -45,9 +49,29 @@ def _friendly(func: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
+def _udp_host(host: str, used: bool) -> str:
+    """``--udp-host`` checked (an address of this machine); warns off loopback."""
+    import ipaddress
+
+    from margtrack.live.security import udp_exposure_warning
+
+    if host != "localhost":
+        try:
+            ipaddress.ip_address(host)
+        except ValueError:
+            raise ValueError(f"--udp-host must be an IP address of this machine (127.0.0.1, "
+                             f"0.0.0.0 for every interface, or one interface's), got {host!r}"
+                             ) from None
+    if used and (message := udp_exposure_warning(host)) is not None:
+        Console(stderr=True).print(f"[bold yellow]warning:[/] {escape(message)}",
+                                   soft_wrap=True)
+    return host
+
+
 def _sensor_names(spec: str | None) -> list[str]:
     if not spec:
-        raise ValueError("--udp and --serial need --sensors: a count (3) or names (a,b,c)")
+        raise ValueError("--udp, --serial and --osc need --sensors: a count (3) or names "
+                         "(a,b,c)")
     if spec.strip().isdigit():
         return [f"sensor{i}" for i in range(int(spec))]
     return [s.strip() for s in spec.split(",") if s.strip()]
@@ -55,13 +79,24 @@ def _sensor_names(spec: str | None) -> list[str]:
 
 def _source(demo: bool, replay: Path | None, udp: int | None, serial: str | None,
             sensors: str | None, speed: float, people: int, motion: str, preset: str,
-            seed: int, no_mag: bool) -> Source:
+            seed: int, no_mag: bool, osc: int | None = None, lsl: str | None = None,
+            udp_host: str = "127.0.0.1") -> Source:
     chosen = [name for name, on in (("--demo", demo), ("--replay", replay is not None),
-                                    ("--udp", udp is not None), ("--serial", serial is not None))
+                                    ("--udp", udp is not None), ("--serial", serial is not None),
+                                    ("--osc", osc is not None), ("--lsl", lsl is not None))
               if on]
     if len(chosen) != 1:
-        raise ValueError("choose exactly one source: --demo, --replay PATH, --udp PORT or "
-                         f"--serial PORT (got {', '.join(chosen) or 'none'})")
+        raise ValueError("choose exactly one source: --demo, --replay PATH, --udp PORT, "
+                         "--serial PORT, --osc PORT or --lsl NAME "
+                         f"(got {', '.join(chosen) or 'none'})")
+    if osc is not None:
+        from margtrack.live.osc import OscSource
+
+        return OscSource(_sensor_names(sensors), port=osc, host=udp_host, with_mag=not no_mag)
+    if lsl is not None:
+        from margtrack.live.lsl import LslSource
+
+        return LslSource(lsl)
     if demo:
         from margtrack.live.simulator import PeopleSimulation, SimulatorSource
 
@@ -74,7 +109,7 @@ def _source(demo: bool, replay: Path | None, udp: int | None, serial: str | None
     if udp is not None:
         from margtrack.live.udp import UdpSource
 
-        return UdpSource(_sensor_names(sensors), port=udp, with_mag=not no_mag)
+        return UdpSource(_sensor_names(sensors), port=udp, host=udp_host, with_mag=not no_mag)
     from margtrack.live.serial_port import SerialSource
 
     return SerialSource(str(serial), _sensor_names(sensors), with_mag=not no_mag)
@@ -111,12 +146,44 @@ def live_command(
     forward_axis: Annotated[str | None, typer.Option(
         help="heading=pelvis: the pelvis sensor's forward axis, e.g. 0,0,-1.")] = None,
     port: Annotated[int, typer.Option(help="Port of the page (0: any free one).")] = 8080,
-    host: Annotated[str, typer.Option(help="Address to serve the page on.")] = "127.0.0.1",
+    host: Annotated[str, typer.Option(
+        help="Address to serve the page on. 127.0.0.1: this machine only. Any other address "
+        "(0.0.0.0: every interface) lets the network reach the page, so it needs a token "
+        "(printed in the URL) and a warning is printed.")] = "127.0.0.1",
+    token: Annotated[str | None, typer.Option(
+        help="The page's access token (12+ letters, digits, _ or -), then required on "
+        "loopback too; default: a random one when --host is not loopback.")] = None,
+    udp_host: Annotated[str, typer.Option(
+        "--udp-host", help="Interface the --udp (and --osc) listener binds: 127.0.0.1 "
+        "(default, this machine only) or e.g. 0.0.0.0 for sensors on other machines. "
+        "Risk: UDP has no authentication, anyone who can reach the port can inject "
+        "samples.")] = "127.0.0.1",
     duration: Annotated[float | None, typer.Option(
         "--duration", help="Stop after this many seconds.")] = None,
     out: Annotated[Path | None, typer.Option(help="Folder for recordings' exports.")] = None,
     headless: Annotated[bool, typer.Option(
         "--headless", help="No page: run the engine and print its statistics.")] = False,
+    record: Annotated[Path | None, typer.Option(
+        "--record", help="Write the raw sensor stream and events to this HDF5 file when the "
+        "session ends (replay it with --replay).")] = None,
+    force: Annotated[bool, typer.Option(
+        "--force", help="Replace an existing --record file.")] = False,
+    summary: Annotated[Path | None, typer.Option(
+        "--summary", help="When the engine stops, write its summary (error, frames, "
+        "per-sensor received/processed/lost/gaps/resyncs/stale_s...) to this JSON file.")]
+    = None,
+    stale_after_s: Annotated[float | None, typer.Option(
+        "--stale-after-s", help="A sensor silent this long stops integrating (stale) and "
+        "restarts when it returns; default five sample periods.")] = None,
+    osc: Annotated[int | None, typer.Option(
+        "--osc", help="Listen for OSC messages /margtrack/<sensor>/imu on this UDP port.")]
+    = None,
+    lsl: Annotated[str | None, typer.Option(
+        "--lsl", help="Read the Lab Streaming Layer stream of this name (type IMU/MARG).")]
+    = None,
+    sensor_calibration: Annotated[list[str] | None, typer.Option(
+        "--sensor-calibration", help="NAME=FILE: correct sensor NAME's samples with this "
+        "calibration JSON (margtrack calibrate guided ...); repeatable.")] = None,
 ) -> None:
     """Track sensors live and show the avatar in a browser page (000's prototype system)."""
     console = Console()
@@ -124,30 +191,85 @@ def live_command(
         raise ValueError(f"--heading must be north or pelvis, got {heading!r}")
     axis = None if forward_axis is None else [float(v) for v in forward_axis.split(",")]
     source = _source(demo, replay, udp, serial, sensors, speed, people, motion, preset, seed,
-                     no_mag)
+                     no_mag, osc, lsl,
+                     udp_host=_udp_host(udp_host, udp is not None or osc is not None))
+    if record is not None:
+        from margtrack.io.safe_output import check_output
+
+        check_output(record, [replay] if replay is not None else [], force=force)
+    if summary is not None:
+        from margtrack.io.safe_output import check_output
+
+        check_output(summary, [replay] if replay is not None else [], force=force)
+    if sensor_calibration:
+        source = _calibrated(source, sensor_calibration)
+    params: list[str] | dict[str, Any] = param or []
+    recorded = getattr(source, "recording", None)  # a raw live recording replayed
+    if recorded is not None and method == "default" and not param:
+        method, params, calibrate = recorded.method, dict(recorded.params), False
+        console.print(f"replaying {recorded.n_frames} frames with the session's method "
+                      f"{method} and its parameters and calibrations")
     if headless:
-        _headless(source, method, param or [], calibrate, heading, axis, duration, console)
+        _headless(source, method, params, calibrate, heading, axis, duration, console,
+                  record, force, summary=summary, stale_after_s=stale_after_s)
         return
     from margtrack.live.avatars import Avatars
     from margtrack.live.viewer import run_live
 
     has_body = Avatars.from_names(source.info.sensor_names) is not None
-    console.print(f"margtrack live: {source.info.description}; serving http://{host}:{port} "
-                  "(Ctrl-C to stop)")
-    session = run_live(source, method, port, host=host, params=param or [],
+    err = Console(stderr=True)
+
+    def announce(running: Any) -> None:
+        console.print(f"margtrack live: {source.info.description}; serving {running.url} "
+                      "(Ctrl-C to stop)", soft_wrap=True)
+
+    session = run_live(source, method, port, host=host, token=token, params=params,
+                       announce=announce,
+                       warn=lambda m: err.print(f"[bold yellow]warning:[/] {escape(m)}",
+                                                soft_wrap=True),
                        calibrate_at_start=calibrate and has_body, heading=cast(Heading, heading),
-                       forward_axis=axis, out_dir=out, duration_s=duration)
+                       forward_axis=axis, out_dir=out, duration_s=duration, record=record)
+    recorder = getattr(session.viewer, "raw_recorder", None)
+    if recorder is not None and record is not None:
+        console.print(f"raw recording: {recorder.n_frames} frames written to "
+                      f"{recorder.save(record, force=force)}")
     console.print(session.engine.stats().summary())
+    if summary is not None:
+        session.engine.write_summary(str(summary))
 
 
-def _headless(source: Source, method: str, params: list[str], calibrate: bool, heading: str,
-              axis: list[float] | None, duration: float | None, console: Console) -> None:
+def _calibrated(source: Source, specs: list[str]) -> Source:
+    """``source`` with the ``NAME=FILE`` calibrations applied to those sensors."""
+    from margtrack.calibration.calibration_file import load_calibration
+    from margtrack.live.calibration_panel import CalibratedSource
+
+    wrapped = CalibratedSource(source)
+    names = list(source.info.sensor_names)
+    for spec in specs:
+        name, sep, file = spec.partition("=")
+        if not sep or name not in names:
+            raise ValueError(f"--sensor-calibration {spec!r}: give NAME=FILE with NAME one of "
+                             f"{', '.join(names)}")
+        wrapped.set_calibration(names.index(name), load_calibration(file))
+    return wrapped  # type: ignore[return-value]
+
+
+def _headless(source: Source, method: str, params: list[str] | dict[str, Any],
+              calibrate: bool, heading: str,
+              axis: list[float] | None, duration: float | None, console: Console,
+              record: Path | None = None, force: bool = False, *,
+              summary: Path | None = None, stale_after_s: float | None = None) -> None:
     import time
 
     from margtrack.live.engine import Engine
+    from margtrack.live.recording import RawRecorder
 
     engine = Engine(source.info, method, params, heading=cast(Heading, heading),
-                    forward_axis=axis)
+                    forward_axis=axis, stale_after_s=stale_after_s,
+                    summary_path=None if summary is None else str(summary))
+    recorder = RawRecorder(engine) if record is not None else None
+    if recorder is not None:
+        recorder.start()
     if calibrate and engine.avatars is not None:
         engine.request_calibration()
     end = math.inf if duration is None else time.perf_counter() + duration
@@ -155,10 +277,15 @@ def _headless(source: Source, method: str, params: list[str], calibrate: bool, h
         with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C ends the run cleanly
             while engine.running and time.perf_counter() < end:
                 engine.wait(min(0.2, max(end - time.perf_counter(), 0.0)))
+    if recorder is not None and record is not None:
+        console.print(f"raw recording: {recorder.n_frames} frames written to "
+                      f"{recorder.save(record, force=force)}")
     stats = engine.stats()
     console.print(f"{source.info.description}: {source.info.n_sensors} sensors, method "
                   f"{engine.method}")
     console.print(stats.summary())
     console.print(f"calibration: {stats.calibration}")
+    if summary is not None:
+        console.print(f"summary written to {summary}")
     if stats.error:
         raise ValueError(stats.error)
