@@ -273,7 +273,9 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         extra = np.empty((n_sensors, n, max(width, 1)))
         flags = np.empty((n_sensors, n), dtype=np.uint16)
         has = (x.mag is not None) | (self._has_gyr_bit if x.gyr is not None else 0)
-        self.kernel.run(
+        # several sensors: shared among threads (compiled on first use of many sensors)
+        run = self.kernel.run_many if n_sensors > 1 else self.kernel.run
+        run(
             work.rows, work.clock, self._coefs, _read_only(np.ascontiguousarray(x.t)),
             _read_only(x.acc if x.gyr is None else x.gyr), _read_only(x.acc),
             _read_only(x.acc if x.mag is None else x.mag), has, q, extra, flags,

@@ -27,7 +27,8 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+import numpy as np
+from numba import njit, prange
 
 from margtrack.kernels import screen
 from margtrack.kernels.triad import level, reference_triad, triad_unit, unit_pair
@@ -99,27 +100,59 @@ def _sample(start, step, hold, row, coef, scoef, dt, tflags, g0, g1, g2, a0, a1,
 
 
 @njit(cache=True, inline="always")
+def _clock_series(clock, max_gap, t):
+    """The shared clock over timestamps ``t`` (N,): intervals (N,) s and clock flags (N,)."""
+    n = t.shape[0]
+    dts = np.empty(n)
+    tflags = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        dts[i], tflags[i] = screen.time_one(clock, max_gap, t[i])
+    return dts, tflags
+
+
+@njit(cache=True, inline="always")
+def _sensor_series(start, step, hold, row, coef, scoef, dts, tflags, gyr, acc, mag,
+                   has_mag, has_gyr, q_out, x_out, flags_out):
+    """One sensor's N samples: gyr, acc, mag (N, 3); q_out (N, 4), x_out (N, K), flags_out
+    (N,) filled."""
+    for i in range(dts.shape[0]):
+        flags_out[i] = _sample(
+            start, step, hold, row, coef, scoef, dts[i], tflags[i],
+            gyr[i, 0], gyr[i, 1], gyr[i, 2], acc[i, 0], acc[i, 1], acc[i, 2],
+            mag[i, 0], mag[i, 1], mag[i, 2], has_mag, has_gyr, q_out[i], x_out[i],
+        )
+
+
+@njit(cache=True, inline="always")
 def run_series(start, step, hold, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
                flags_out):
     """S sensors' N samples with common timestamps ``t`` (N,) s; ``clock`` (1,) in/out.
 
     rows (S, R) in/out; coefs: the screening coefficients (N_SCOEF) then the method's;
     gyr, acc, mag (S, N, 3); ``has`` bits: 1 a field is given, 2 a rate is given;
-    q_out (S, N, 4), x_out (S, N, K), flags_out (S, N) uint16 filled.
+    q_out (S, N, 4), x_out (S, N, K), flags_out (S, N) uint16 filled. The clock is shared,
+    so it is read once; then each sensor runs through its samples on its own.
     """
     scoef, coef = coefs[:N_SCOEF], coefs[N_SCOEF:]
     has_mag, has_gyr = (has & 1) != 0, (has & 2) != 0
-    max_gap = scoef[screen.C_MAX_GAP]
-    for i in range(t.shape[0]):
-        dt, tflags = screen.time_one(clock, max_gap, t[i])
-        for s in range(rows.shape[0]):
-            flags_out[s, i] = _sample(
-                start, step, hold, rows[s], coef, scoef, dt, tflags,
-                gyr[s, i, 0], gyr[s, i, 1], gyr[s, i, 2],
-                acc[s, i, 0], acc[s, i, 1], acc[s, i, 2],
-                mag[s, i, 0], mag[s, i, 1], mag[s, i, 2],
-                has_mag, has_gyr, q_out[s, i], x_out[s, i],
-            )
+    dts, tflags = _clock_series(clock, scoef[screen.C_MAX_GAP], t)
+    for s in range(rows.shape[0]):
+        _sensor_series(start, step, hold, rows[s], coef, scoef, dts, tflags, gyr[s], acc[s],
+                       mag[s], has_mag, has_gyr, q_out[s], x_out[s], flags_out[s])
+
+
+@njit(cache=True, inline="always")
+def run_series_parallel(start, step, hold, rows, clock, coefs, t, gyr, acc, mag, has, q_out,
+                        x_out, flags_out):
+    """:func:`run_series` with the sensors shared among threads (``numba.prange``); for an
+    entry point compiled with ``parallel=True``. Each sensor's arithmetic is the same, so
+    the results are identical."""
+    scoef, coef = coefs[:N_SCOEF], coefs[N_SCOEF:]
+    has_mag, has_gyr = (has & 1) != 0, (has & 2) != 0
+    dts, tflags = _clock_series(clock, scoef[screen.C_MAX_GAP], t)
+    for s in prange(rows.shape[0]):
+        _sensor_series(start, step, hold, rows[s], coef, scoef, dts, tflags, gyr[s], acc[s],
+                       mag[s], has_mag, has_gyr, q_out[s], x_out[s], flags_out[s])
 
 
 @njit(cache=True, inline="always")

@@ -43,6 +43,13 @@ def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
                         q_out, x_out, flags_out)
 
 
+@njit(cache=True, parallel=True)
+def run_many(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """S sensors' N samples, shared among threads (``contract.run_series_parallel``)."""
+    contract.run_series_parallel(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
+                                 q_out, x_out, flags_out)
+
+
 @njit(cache=True)
 def update(rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out, flags_out):
     """One sample of S sensors (``contract.update_samples``)."""
