@@ -47,8 +47,10 @@ Row = tuple[Array, Array, Array]
 
 
 def recursive_methods() -> list[str]:
-    """Registered methods that read the gyroscope (``METHODS`` first, any new one after)."""
-    found = [m for m in methods.available() if methods.get(m).uses_gyr]
+    """Registered methods that read the gyroscope and have an ``update`` (not the offline
+    ones), ``METHODS`` first, any new one after."""
+    found = [m for m in methods.available()
+             if methods.get(m).uses_gyr and not getattr(methods.get(m), "offline", False)]
     return [m for m in METHODS if m in found] + sorted(set(found) - set(METHODS))
 
 

@@ -24,6 +24,7 @@ from margtrack.filters.ekf import MarinsEkf
 from margtrack.filters.gradient import Gradient
 from margtrack.filters.gyro import GyroIntegration
 from margtrack.filters.robust import Robust
+from margtrack.filters.robust_offline import RobustOffline
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -47,6 +48,7 @@ _CLASSES: tuple[type[Estimator], ...] = (
     Newton,
     Quest,
     Robust,
+    RobustOffline,
     Triad,
 )
 _BY_NAME: Mapping[str, type[Estimator]] = types.MappingProxyType({c.name: c for c in _CLASSES})

@@ -8,6 +8,8 @@ and imported on first use:
 
 - ``vqf``: VQF (Laidig & Seel 2023), C++ batch ``VQF.updateBatch``, default parameters;
   its 9-D output is ENU with margtrack's meaning (docs/conventions.md).
+- ``vqf-offline``: VQF's offline (acausal) variant ``vqf.offlineVQF``, default parameters,
+  the peer of ``robust-offline``; same output convention as ``vqf``.
 - ``imufusion``: x-io's Fusion, per-sample C updates from Python, ENU convention,
   default gain; it takes deg/s and g.
 - ``madgwick``: ``ahrs.filters.Madgwick`` (pure Python), MARG, output in NWU, rotated to
@@ -26,7 +28,7 @@ from margtrack.recording import Recording
 
 Array = NDArray[np.float64]
 
-__all__ = ["EXTERNAL", "madgwick", "run_imufusion", "run_vqf"]
+__all__ = ["EXTERNAL", "madgwick", "run_imufusion", "run_vqf", "run_vqf_offline"]
 
 # NWU (x north, y west, z up) to ENU: a quarter turn about the vertical
 _NWU_TO_ENU = np.array([np.sqrt(0.5), 0.0, 0.0, np.sqrt(0.5)])
@@ -44,6 +46,15 @@ def run_vqf(rec: Recording) -> Array:
 
     gyr, acc, mag = _arrays(rec)
     return np.asarray(VQF(1.0 / rec.rate_hz).updateBatch(gyr, acc, mag)["quat9D"])
+
+
+def run_vqf_offline(rec: Recording) -> Array:
+    """VQF's offline variant (``vqf.offlineVQF``: acausal, the whole series at once) with
+    default parameters, ENU."""
+    from vqf import offlineVQF
+
+    gyr, acc, mag = _arrays(rec)
+    return np.asarray(offlineVQF(gyr, acc, mag, 1.0 / rec.rate_hz)["quat9D"])
 
 
 def run_imufusion(rec: Recording) -> Array:
@@ -84,5 +95,6 @@ def madgwick(beta: float) -> Adapter:
 #: Adapters by name (``madgwick`` takes its gain: :func:`madgwick`).
 EXTERNAL: dict[str, Adapter] = {
     "vqf": Adapter(run_vqf, "vqf"),
+    "vqf-offline": Adapter(run_vqf_offline, "vqf-offline"),
     "imufusion": Adapter(run_imufusion, "imufusion"),
 }
