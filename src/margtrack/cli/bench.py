@@ -3,15 +3,22 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.table import Table
 
 from margtrack.cli.app import app, console, friendly_errors, warn
+from margtrack.cli.batch import SchedulerOption, WorkersOption
+
+if TYPE_CHECKING:
+    from margtrack.bench.cv import CVResult
+    from margtrack.recording import Recording
 
 #: the peer libraries `bench broad` compares with: name -> the package that provides it
-PEER_PACKAGES = {"vqf": "vqf", "imufusion": "imufusion", "madgwick": "ahrs"}
+PEER_PACKAGES = {
+    "vqf": "vqf", "vqf-offline": "vqf", "imufusion": "imufusion", "madgwick": "ahrs"
+}
 
 
 def _peer_installed(name: str) -> bool:
@@ -44,15 +51,36 @@ def bench_broad(
         typer.Option("--method", "-m", help="margtrack methods (default: every filter)."),
     ] = None,
     external: Annotated[
-        str, typer.Option(help="Other libraries, comma-separated: vqf, imufusion, madgwick.")
-    ] = "vqf,imufusion",
+        str,
+        typer.Option(
+            help="Other libraries, comma-separated: vqf, vqf-offline, imufusion, madgwick."
+        ),
+    ] = "vqf,vqf-offline,imufusion",
     madgwick_beta: Annotated[
         float,
         typer.Option(help="Gain of ahrs' Madgwick (best single beta on BROAD; pure Python, slow)."),
     ] = 0.08,
     out: Annotated[Path, typer.Option(help="PNG bar plot.")] = Path("broad_comparison.png"),
+    cv: Annotated[
+        bool,
+        typer.Option(
+            "--cv/--no-cv",
+            help="Also cross-validate every method with a declared grid (leave-one-trial-out; "
+            "one run of each grid point on every trial: minutes).",
+        ),
+    ] = True,
+    workers: WorkersOption = None,
+    scheduler: SchedulerOption = None,
 ) -> None:
-    """Compare margtrack's methods with other libraries on BROAD: table, bar plot, speed."""
+    """Compare margtrack's methods with other libraries on BROAD: table, bar plot, speed.
+
+    With --cv (the default) each method with a declared grid (margtrack.bench.grids) is
+    also cross-validated: every trial scored with the grid point best on the other 15,
+    printed next to the in-sample figure. Its grid points run like `margtrack tune`'s
+    (--workers / --scheduler).
+    """
+    import time
+
     from rich.progress import Progress
 
     from margtrack import io, methods
@@ -76,7 +104,10 @@ def bench_broad(
         elif name in ext.EXTERNAL:
             runs.append((name, ext.EXTERNAL[name]))
         else:
-            raise ValueError(f"unknown external library {name!r}; known: vqf, imufusion, madgwick")
+            raise ValueError(
+                f"unknown external library {name!r}; known: vqf, vqf-offline, imufusion, "
+                "madgwick"
+            )
     trials = io.broad_trials(folder)
     with Progress(transient=True) as bar:
         task = bar.add_task("reading", total=len(trials) * (1 + len(runs)))
@@ -92,7 +123,9 @@ def bench_broad(
         # compile every numba kernel before timing: run each method once on a short slice
         for _, run_one in runs:
             run_one.run(recordings[0][0].slice(0, 50))
+        started = time.perf_counter()
         result = cmp.compare(recordings, runs, progress=progress)
+        wall_s = time.perf_counter() - started
     for group in (None, "undisturbed", "disturbed"):
         title = f"BROAD {group or 'all trials'}: mean RMSE over movement samples (deg)"
         table = Table(title=title)
@@ -103,3 +136,93 @@ def bench_broad(
         console.print(table)
     plot = cmp.plot_comparison(result, out, ["all", "undisturbed", "disturbed"])
     console.print(f"plot: {plot}")
+    if cv:
+        # wall time of one default run per method: its estimation plus an equal share of
+        # the scoring (the cv runs every grid point like that once)
+        spare = max(0.0, wall_s - sum(m.seconds for m in result.methods)) / len(result.methods)
+        seconds = {m.method: m.seconds + spare for m in result.methods}
+        _cross_validate_all(names, recordings, seconds, folder, workers, scheduler)
+
+
+def _cross_validate_all(
+    names: list[str],
+    recordings: list[tuple[Recording, tuple[str, ...]]],
+    seconds: dict[str, float],
+    folder: Path,
+    workers: int | None,
+    scheduler: str | None,
+) -> None:
+    """Cross-validate each of ``names`` with a declared grid and print the table."""
+    import itertools
+    import time
+
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from margtrack.batch.cluster import mapper_of, open_pool
+    from margtrack.bench import broad, grids
+    from margtrack.bench import cv as crossval
+    from margtrack.methods import get
+
+    tuned = [n for n in names if grids.has_grid(get(n).name)]
+    if not tuned:
+        console.print("cross-validation: none of these methods has a declared grid")
+        return
+    points = {
+        n: len(list(itertools.product(*grids.declared_grid(get(n).name).values()))) for n in tuned
+    }
+    guess_s = sum(points[n] * seconds.get(n, 0.0) for n in tuned)
+    console.print(
+        f"cross-validating {', '.join(tuned)}: {sum(points.values())} grid points, each run "
+        f"once on the {len(recordings)} trials; at the speed of the runs above about "
+        + (f"{guess_s:.0f} s" if guess_s < 120 else f"{guess_s / 60:.0f} min")
+        + " in one process"
+    )
+    start = time.perf_counter()
+    results: list[CVResult] = []
+    columns = (TextColumn("{task.description}"), BarColumn(), TimeRemainingColumn())
+    with Progress(*columns, transient=True) as bar, open_pool(workers, scheduler) as pool:
+        mapper = None if pool.client is None else mapper_of(pool)
+        task = bar.add_task("cross-validation", total=sum(points.values()) + len(tuned))
+        for n in tuned:
+
+            def progress(label: str, n: str = n) -> None:
+                bar.update(task, description=f"cv {n}: {label}")
+                bar.advance(task)
+
+            results.append(crossval.cross_validate(
+                n, grids.declared_grid(get(n).name), recordings,
+                group_order=broad.group_order(folder), progress=progress, mapper=mapper,
+            ))
+    console.print(cv_comparison_table(results))
+    console.print(
+        f"cross-validation took {time.perf_counter() - start:.0f} s ({pool.description}). "
+        "cross-validated: each trial scored with the grid point best on the other trials."
+    )
+
+
+def cv_comparison_table(results: list[CVResult]) -> Table:
+    """Per method: defaults and best point in-sample, cross-validated means, stability."""
+    table = Table(title="BROAD: in-sample vs leave-one-trial-out cross-validated (deg)")
+    table.add_column("method", no_wrap=True)
+    for col in ("default", "best", "CV", "CV h/i", "CV u/d", "folds"):
+        table.add_column(col, justify="right", no_wrap=True)
+    for r in results:
+        scores = r.cross_validated
+        cvm = scores.mean()
+        by_group = "/".join(
+            f"{scores.mean(g)['total_rmse_deg']:.2f}" if g in scores.groups() else "-"
+            for g in ("undisturbed", "disturbed")
+        )
+        default = "-" if r.default is None else f"{r.default.mean()['total_rmse_deg']:.2f}"
+        table.add_row(
+            r.method, default, f"{r.best_in_sample.mean()['total_rmse_deg']:.2f}",
+            f"{cvm['total_rmse_deg']:.2f}",
+            f"{cvm['heading_rmse_deg']:.2f}/{cvm['inclination_rmse_deg']:.2f}", by_group,
+            f"{sum(f.chosen == r.best_index for f in r.folds)}/{len(r.folds)}",
+        )
+    table.caption = (
+        "default, best: mean total on all trials (in-sample); CV: each trial scored with the "
+        "grid point best on the others (total, heading/inclination, undisturbed/disturbed); "
+        "folds: how many chose the in-sample best"
+    )
+    return table
