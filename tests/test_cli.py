@@ -107,8 +107,10 @@ def test_run_reads_an_xio_sensor_folder_in_deg_s_and_g(tmp_path, xio_folder):
     folder = xio_folder / "pelvis"
     out = tmp_path / "pelvis.csv"
     _ok(["run", folder, "--method", "gyro", "-o", out])
-    assert out.read_text().splitlines()[0] == "t_s,quat_w,quat_x,quat_y,quat_z,flags"
-    data = np.loadtxt(out, delimiter=",", skiprows=1)
+    lines = out.read_text().splitlines()
+    assert lines[0].startswith("# margtrack-estimate v1 method=gyro frame=")
+    assert lines[3] == "t_s,quat_w,quat_x,quat_y,quat_z,flags"
+    data = np.loadtxt(out, delimiter=",", skiprows=4)
     np.testing.assert_allclose(np.linalg.norm(data[:, 1:5], axis=1), 1.0, atol=1e-12)
 
 

@@ -38,6 +38,9 @@ def files(tmp_path_factory):
     est = methods.create("bias-kf").run(rec)
     io.write_estimate(est, folder / "est.h5")
     io.write_estimate(est, folder / "est.csv")
+    # a CSV as margtrack wrote it before it stated the frame: no comment lines
+    text = (folder / "est.csv").read_text().splitlines(keepends=True)
+    (folder / "old.csv").write_text("".join(x for x in text if not x.startswith("#")))
     return {"folder": folder, "rec": rec, "est": est}
 
 
@@ -57,11 +60,14 @@ def test_info_reads_an_hdf5_estimate(files):
 
 
 def test_info_reads_a_csv_estimate_and_says_the_frame_is_unstated(files, tmp_path):
-    text = _ok("info", files["folder"] / "est.csv")
+    text = _ok("info", files["folder"] / "old.csv")
     assert "not stated in the file" in text and "GAP 1 (first at sample 150)" in text
+    text = _ok("info", files["folder"] / "est.csv")  # what run writes now states it
+    assert f"body to {files['est'].frame} (earth)" in text and "method │ bias-kf" in text
+    assert "max_gap_s=0.25" in text  # the parameters, from the "# params=" line
     stated = tmp_path / "stated.csv"
     stated.write_text("# margtrack-estimate v1 method=bias-kf frame=NED\n"
-                      + (files["folder"] / "est.csv").read_text())
+                      + (files["folder"] / "old.csv").read_text())
     text = _ok("info", stated)
     assert "body to NED (earth)" in text and "method │ bias-kf" in text
 
@@ -76,9 +82,10 @@ def test_reader_round_trips_what_run_wrote(files):
         np.testing.assert_array_equal(got.outputs["gyr_bias_rad_s"],
                                       est.outputs["gyr_bias_rad_s"])
     assert read_estimate(files["folder"] / "est.h5").estimate().frame == est.frame
+    assert read_estimate(files["folder"] / "est.csv").estimate().frame == est.frame
     with pytest.raises(ValueError, match="does not say its earth frame"):
-        read_estimate(files["folder"] / "est.csv").estimate()
-    assert read_estimate(files["folder"] / "est.csv").estimate("ned").frame == "NED"
+        read_estimate(files["folder"] / "old.csv").estimate()
+    assert read_estimate(files["folder"] / "old.csv").estimate("ned").frame == "NED"
 
 
 def test_recordings_are_not_estimates(files, tmp_path):
@@ -97,7 +104,7 @@ def test_recordings_are_not_estimates(files, tmp_path):
 
 
 def test_bad_estimate_files(files, tmp_path):
-    lines = (files["folder"] / "est.csv").read_text().splitlines()
+    lines = (files["folder"] / "old.csv").read_text().splitlines()
     short = tmp_path / "short.csv"
     short.write_text("\n".join([lines[0], lines[1], ",".join(lines[2].split(",")[:-1] + [""])])
                      + "\n")

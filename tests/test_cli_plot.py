@@ -44,6 +44,9 @@ def files(tmp_path_factory):
     est = methods.create("bias-kf", {"frame": "ENU"}).run(rec)
     io.write_estimate(est, folder / "est.h5")
     io.write_estimate(est, folder / "est.csv")
+    # a CSV as margtrack wrote it before it stated the frame: no comment lines
+    text = (folder / "est.csv").read_text().splitlines(keepends=True)
+    (folder / "old.csv").write_text("".join(x for x in text if not x.startswith("#")))
     return {"folder": folder, "rec": rec, "est": est}
 
 
@@ -128,7 +131,15 @@ def test_plot_of_a_recording_runs_the_method_and_counts_flags(files, tmp_path):
 
 
 def test_csv_estimate_needs_its_frame_for_the_truth(files, tmp_path):
-    csv = files["folder"] / "est.csv"
+    # what margtrack writes states its frame: no --frame needed, the same figures as HDF5
+    from_csv = _ok("plot", files["folder"] / "est.csv", "--truth", files["folder"] / "rec.h5",
+                   "-o", tmp_path / "new.png")
+    from_h5 = _ok("plot", files["folder"] / "est.h5", "--truth", files["folder"] / "rec.h5",
+                  "-o", tmp_path / "h5.png")
+    figures = [x for x in from_csv.splitlines() if x.startswith("against the truth")]
+    assert figures and figures == [
+        x for x in from_h5.splitlines() if x.startswith("against the truth")]
+    csv = files["folder"] / "old.csv"  # an older CSV without the frame: --frame declares it
     message = _refused("plot", csv, "--truth", files["folder"] / "rec.h5", "-o",
                        tmp_path / "c.png")
     assert "does not say its earth frame" in message and "--frame ENU" in message

@@ -58,10 +58,11 @@ def test_csv_output_carries_integer_flags(broken_file, tmp_path):
     out = tmp_path / "est.csv"
     result = _invoke(["run", broken_file, "-o", out, "-m", "gyro"])
     assert result.exit_code == 0, result.output
-    lines = out.read_text().splitlines()
+    lines = [x for x in out.read_text().splitlines() if not x.startswith("#")]
     header = lines[0].split(",")
     col = header.index("flags")
     assert lines[1 + 1500].split(",")[col] == str(int(Flag.GAP))
+    assert "flags=bits" in out.read_text().splitlines()[2]  # the units line says so
 
 
 def test_strict_mode_refuses_and_names_the_first_bad_sample(broken_file, tmp_path):

@@ -104,7 +104,8 @@ def test_chunked_csv_output_is_the_same_bytes(rec, files, tmp_path, chunk) -> No
     # the same bytes as the writer before streaming existed (one call on the whole run)
     outputs, _ = estimate_fields(whole)
     direct = tmp_path / "direct.csv"
-    write_estimate_csv(direct, whole.t, whole.quat, outputs)
+    write_estimate_csv(direct, whole.t, whole.quat, outputs, method=whole.method,
+                       frame=whole.frame, params=whole.params)
     assert direct.read_bytes() == expected.read_bytes()
 
 
@@ -238,3 +239,17 @@ def test_broad_trial_figures_equal_the_whole_run(broad_folder, tmp_path) -> None
     assert result.rate_hz == rec.rate_hz and result.samples == rec.n_samples
     with h5py.File(tmp_path / "est.h5") as f:
         np.testing.assert_array_equal(f["quat"][()], whole.quat)
+
+
+def test_an_offline_method_runs_the_whole_file_whatever_the_chunk_size(rec, files, tmp_path):
+    # robust-offline smooths over the whole recording: chunks would change (and refuse) it
+    whole = methods.create("robust-offline").run(rec)
+    out = tmp_path / "offline.h5"
+    seen: list[tuple[int, int]] = []
+    result = run_file(files["h5"], out, "robust-offline", chunk_samples=611,
+                      progress=lambda done, total: seen.append((done, total)))
+    np.testing.assert_array_equal(io.read_estimate(out).quat, whole.quat)
+    assert seen == [(rec.n_samples, rec.n_samples)]
+    errors = summarize(error_series(whole.quat, rec.quat_true, whole.frame, rec.frame),
+                       rec.movement)
+    assert result.total_rmse_deg == pytest.approx(errors.total_rmse_deg, rel=1e-12)

@@ -8,10 +8,13 @@ import json
 import numpy as np
 import pytest
 
+from margtrack import frames, sim
 from margtrack import quaternion as quat
-from margtrack import sim
+from margtrack.bench import chunked, runner
+from margtrack.bench.metrics import error_series, summarize
 from margtrack.bench.runner import (
     Adapter,
+    ErrorAccumulator,
     Method,
     Scores,
     evaluate,
@@ -101,3 +104,54 @@ def test_scores_means_groups_and_json(tmp_path):
     data = json.loads((tmp_path / "r.json").read_text())
     assert data["trials"]["b"]["total_rmse_deg"] == pytest.approx(4.0, abs=1e-9)
     assert set(data["groups"]) == {"g1", "g2", "all"}
+
+
+def test_accumulated_chunks_equal_the_whole_score_and_the_metrics_oracle():
+    rec = sim.simulate_motion("random", duration_s=10, rate_hz=100, seed=7)
+    rng = np.random.default_rng(7)
+    noise = quat.from_rotvec(rng.normal(scale=0.05, size=(rec.n_samples, 3)))
+    est = quat.multiply(noise, rec.quat_true)  # errors of a few degrees, in ENU
+    truth = rec.quat_true.copy()
+    truth[rng.random(rec.n_samples) < 0.1] = np.nan
+    truth[300:420] = np.nan  # a long hole, as where optical markers were lost
+    rec = dataclasses.replace(rec, quat_true=truth, movement=rng.random(rec.n_samples) < 0.7)
+    whole = score(rec, est, "ENU")
+    oracle = summarize(error_series(est, truth, "ENU", "ENU"), rec.movement)  # another path
+    assert whole.n_scored == oracle.n_samples == np.count_nonzero(
+        rec.movement & ~np.isnan(truth[:, 0]))
+    for key in ("total_rmse_deg", "heading_rmse_deg", "inclination_rmse_deg"):
+        assert getattr(whole, key) == pytest.approx(getattr(oracle, key), rel=1e-12)
+    assert 1.0 < whole.total_rmse_deg < 10.0  # 0.05 rad per axis: about 5 deg
+    # the same figures chunk by chunk (uneven chunks, one inside the long hole), in NED too
+    acc = ErrorAccumulator()
+    for a, b in [(0, 1), (1, 333), (333, 400), (400, 1001)]:
+        acc.add(rec.slice(a, b), frames.convert(est[a:b], "ENU", "NED"), "NED")
+    got = acc.summary()
+    assert got.n_samples == whole.n_scored
+    for key in ("total_rmse_deg", "heading_rmse_deg", "inclination_rmse_deg"):
+        assert getattr(got, key) == pytest.approx(getattr(whole, key), rel=1e-12)
+    assert acc.rmse_deg() == (got.total_rmse_deg, got.heading_rmse_deg,
+                              got.inclination_rmse_deg)
+
+
+def test_the_chunked_runner_scores_through_the_accumulator():
+    # one accumulation code: run_file has no error sums of its own
+    assert chunked.ErrorAccumulator is runner.ErrorAccumulator
+    assert not hasattr(chunked, "_ErrorSums")
+
+
+def test_accumulator_without_scored_samples_says_why():
+    rec = _still()
+    empty = ErrorAccumulator()
+    empty.add(dataclasses.replace(rec, quat_true=None), rec.quat_true)
+    assert not empty.has_truth and empty.rmse_deg() == (None, None, None)
+    with pytest.raises(ValueError, match="no ground truth"):
+        empty.summary()
+    none_moving = dataclasses.replace(rec, movement=np.zeros(rec.n_samples, bool))
+    with pytest.raises(ValueError, match="'still': no sample to evaluate: the mask selects"):
+        score(none_moving, rec.quat_true)
+    holes = dataclasses.replace(rec, quat_true=np.full((rec.n_samples, 4), np.nan))
+    with pytest.raises(ValueError, match="truth is missing \\(NaN\\) on every one"):
+        score(holes, rec.quat_true)
+    with pytest.raises(ValueError, match=r"estimate has shape \(3, 4\)"):
+        ErrorAccumulator().add(rec, rec.quat_true[:3])

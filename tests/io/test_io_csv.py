@@ -220,9 +220,14 @@ def test_estimate_csv(tmp_path: Path) -> None:
     write_estimate_csv(tmp_path / "e.csv", t, q,
                        {"bias_rad_s": bias, "criterion": crit, "P": cov, "flag": flags})
     lines = (tmp_path / "e.csv").read_text(encoding="utf-8").splitlines()
-    assert lines[0] == ("t_s,quat_w,quat_x,quat_y,quat_z,bias_rad_s_x,bias_rad_s_y,bias_rad_s_z,"
+    # no method or frame given: the file says neither, but still the layout and the units
+    assert lines[0] == "# margtrack-estimate v1 quat=[w,x,y,z] body-to-earth"
+    assert lines[1] == ("# units t_s=s quat_w=1 quat_x=1 quat_y=1 quat_z=1 bias_rad_s_x=rad/s "
+                        "bias_rad_s_y=rad/s bias_rad_s_z=rad/s criterion=1 P_0=unstated "
+                        "P_1=unstated P_2=unstated P_3=unstated flag=0/1")
+    assert lines[2] == ("t_s,quat_w,quat_x,quat_y,quat_z,bias_rad_s_x,bias_rad_s_y,bias_rad_s_z,"
                         "criterion,P_0,P_1,P_2,P_3,flag")
-    data = np.loadtxt(tmp_path / "e.csv", delimiter=",", skiprows=1)
+    data = np.loadtxt(tmp_path / "e.csv", delimiter=",", skiprows=3)
     np.testing.assert_array_equal(data[:, 0], t)
     np.testing.assert_array_equal(data[:, 1:5], q)
     np.testing.assert_array_equal(data[:, 5:8], bias)

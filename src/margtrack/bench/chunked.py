@@ -16,22 +16,23 @@ equal one run, to 1e-12), the estimate is streamed to the output
 The output is checked before anything is computed (:func:`~margtrack.io.safe_output.check_output`:
 never the input, an existing file only with ``force``) and written atomically.
 
-RMSE figures follow :mod:`margtrack.bench.metrics` (BROAD convention: errors of
-``e = q_est ⊗ q_true*`` over the ``movement`` samples), summed as squares per chunk, so they
-equal the whole-run figures.
+RMSE figures come from the one runner's :class:`~margtrack.bench.runner.ErrorAccumulator`
+(BROAD convention: errors of ``e = q_est ⊗ q_true*`` over the ``movement`` samples, truth
+holes skipped), fed chunk by chunk: the same code and figures as
+:func:`margtrack.bench.runner.score` on the whole run.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from margtrack.bench.metrics import error_series
+from margtrack.bench.runner import ErrorAccumulator
 from margtrack.estimator.flags import Flag
 from margtrack.io.chunks import open_chunks
 from margtrack.io.mapped import flag_invalid
@@ -46,8 +47,9 @@ ROW_FIELDS = (
     "file", "samples", "duration_s", "rate_hz", "method", "gaps", "flagged_samples",
     "mag_ignored_pct", "total_rmse_deg", "heading_rmse_deg", "inclination_rmse_deg", "seconds",
 )
-#: samples per block of the error computation (bounds its temporary arrays)
-_ERROR_BLOCK = 1 << 17
+#: the chunk size of an offline method: the whole recording (its memory grows with it)
+_WHOLE = 2**62
+
 #: samples run and written at a time within a chunk
 _RUN_BLOCK = 1 << 18
 
@@ -132,36 +134,6 @@ class FlagTally:
         )
 
 
-class _ErrorSums:
-    """Sums of squared total/heading/inclination errors (rad²) over the movement samples."""
-
-    def __init__(self) -> None:
-        self.sums = np.zeros(3)
-        self.count = 0
-        self.seen = False
-
-    def add(self, quat: np.ndarray, est_frame: str, rec: Recording) -> None:
-        if rec.quat_true is None:
-            return
-        self.seen = True
-        for start in range(0, rec.n_samples, _ERROR_BLOCK):
-            part = np.s_[start : start + _ERROR_BLOCK]
-            e = error_series(quat[part], rec.quat_true[part], est_frame, rec.frame)
-            mask = ~np.isnan(e.total_rad)  # truth holes (NaN rows) are skipped
-            if rec.movement is not None:
-                mask &= rec.movement[part]
-            for k, err in enumerate((e.total_rad, e.heading_rad, e.inclination_rad)):
-                counted = err[mask]
-                self.sums[k] += float(np.dot(counted, counted))
-            self.count += int(e.total_rad[mask].shape[0])
-
-    def rmse_deg(self) -> tuple[float | None, float | None, float | None]:
-        if not self.seen or self.count == 0:
-            return None, None, None
-        total, heading, inclination = np.degrees(np.sqrt(self.sums / self.count))
-        return float(total), float(heading), float(inclination)
-
-
 def _saturation_text(name: str, hit: Saturation) -> str:
     advice = (
         "remove the magnet or metal near the sensor" if name == "mag"
@@ -199,7 +171,7 @@ def _load_calibration(calibration: Any) -> Any:
 
 
 def run_file(
-    input_path: str | Path,
+    input_path: str | Path | Sequence[str | Path],
     output_path: str | Path,
     method: str = "default",
     params: Iterable[str] | Mapping[str, Any] = (),
@@ -217,7 +189,9 @@ def run_file(
     Parameters
     ----------
     input_path : a recording :func:`margtrack.io.read` can read (margtrack HDF5 is read
-        chunk by chunk; other formats whole).
+        chunk by chunk; other formats whole), or a list of per-sensor files (one sensor
+        type each, merged onto the gyroscope's timestamps by
+        :func:`margtrack.io.read_sensor_files`).
     output_path : the estimate file, ``.h5``/``.hdf5`` or ``.csv`` (as
         :func:`margtrack.io.write_estimate`); checked before any computation.
     method : registered method name (``"default"``: the recommended one).
@@ -228,7 +202,8 @@ def run_file(
     frame : earth frame of the written orientation ("NED"/"ENU"; None: the method's).
     read_kwargs : keywords for the reader (``gyr_unit``, ``acc_unit``, ``mag_unit``,
         ``time_unit``; more for CSV, as :func:`margtrack.io.read`).
-    chunk_samples : samples per chunk (bounds the memory: about 0.3 KB per sample).
+    chunk_samples : samples per chunk (bounds the memory: about 0.3 KB per sample); an
+        offline method (``robust-offline``) reads and runs the whole recording at once.
     force : replace an existing output (never the input).
     progress : ``progress(samples_done, samples_total)`` after each chunk.
     on_warning : called with each warning sentence as it is found (also in the summary).
@@ -248,19 +223,26 @@ def run_file(
     from margtrack import methods
     from margtrack.io.estimate_writer import EstimateWriter
 
-    src, out = Path(input_path), Path(output_path)
-    check_output(out, [src], force=force)
-    if not src.exists():
-        raise FileNotFoundError(f"no such file or folder: {src}")
+    inputs = _inputs(input_path)
+    out = Path(output_path)
+    check_output(out, inputs, force=force)
+    for src in inputs:
+        if not src.exists():
+            raise FileNotFoundError(f"no such file or folder: {src}")
+    src_text = ", ".join(map(str, inputs))
     cal = _load_calibration(calibration)
     cls = methods.get(method)
     values: dict[str, Any] = {} if cal is None else dict(cal.parameter_values(cls.params_type))
     values.update(params if isinstance(params, Mapping) else methods.parse_params_items(params))
     estimator = methods.create(method, values)
+    # an offline method smooths the whole recording at once: one chunk, one block
+    whole_file = bool(getattr(cls, "offline", False))
+    if whole_file:
+        chunk_samples = _WHOLE
     kwargs = dict(read_kwargs or {})
     warned: list[str] = []
     saturation: dict[str, Saturation] = {}
-    tally, errors = FlagTally(), _ErrorSums()
+    tally, errors = FlagTally(), ErrorAccumulator()
     gaps = mag_ignored = 0
     t_first = t_last = float("nan")
     out_frame = ""
@@ -271,20 +253,24 @@ def run_file(
             on_warning(text)
 
     # the writer first: an unsupported output extension fails before the input is read
-    with EstimateWriter(out) as writer, open_chunks(src, int(chunk_samples), **kwargs) as source:
+    source_path: Path | list[Path] = inputs[0] if len(inputs) == 1 else inputs
+    with EstimateWriter(out) as writer, open_chunks(
+        source_path, int(chunk_samples), **kwargs
+    ) as source:
         whole = source.whole
         if whole is not None:
-            _check_units(whole, str(src))
+            _check_units(whole, src_text)
             for name, hit in whole.saturation().items():
                 warn(_saturation_text(name, hit))
         for start, chunk in source:
             if whole is None:
-                _check_units(chunk, str(src), start)
+                _check_units(chunk, src_text, start)
                 _merge_saturation(saturation, chunk, start)
-            for first in range(0, chunk.n_samples, _RUN_BLOCK):
+            block = chunk.n_samples if whole_file else _RUN_BLOCK
+            for first in range(0, chunk.n_samples, block):
                 # run and write a block at a time: the outputs of a whole chunk (some 100
                 # bytes per sample) never sit in memory beside it
-                piece = chunk.slice(first, first + _RUN_BLOCK)
+                piece = chunk.slice(first, first + block)
                 if cal is not None:
                     piece = cal.apply(piece)
                 estimate = estimator.run(piece, check_units=False)  # checked per chunk above
@@ -301,7 +287,7 @@ def run_file(
                     mag_ignored += int(
                         np.count_nonzero(flags & int(Flag.MAG_IGNORED | Flag.MAG_DISTURBED))
                     )
-                errors.add(estimate.quat, estimate.frame, piece)
+                errors.add(piece, estimate.quat, estimate.frame)
                 del estimate, piece
             if start == 0:
                 t_first = float(chunk.t[0])
@@ -315,7 +301,7 @@ def run_file(
         rate_hz = source.rate_hz()
     total, heading, inclination = errors.rmse_deg()
     return FileSummary(
-        file=str(src),
+        file=src_text,
         samples=n,
         duration_s=t_last - t_first,
         rate_hz=float(rate_hz),
@@ -332,6 +318,16 @@ def run_file(
         flag_summary=tally.text(),
         warnings=tuple(warned),
     )
+
+
+def _inputs(input_path: str | Path | Sequence[str | Path]) -> list[Path]:
+    """The input as a non-empty list of paths (one file or folder, or per-sensor files)."""
+    if isinstance(input_path, str | Path):
+        return [Path(input_path)]
+    paths = [Path(p) for p in input_path]
+    if not paths:
+        raise ValueError("no input file: give a recording, or per-sensor files")
+    return paths
 
 
 def _merge_saturation(found: dict[str, Saturation], chunk: Recording, start: int) -> None:

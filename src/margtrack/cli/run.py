@@ -25,7 +25,14 @@ from margtrack.cli.options import (
 @app.command()
 @friendly_errors
 def run(
-    path: Annotated[Path, typer.Argument(help="Recording file or x-IMU3 sensor folder.")],
+    paths: Annotated[
+        list[Path],
+        typer.Argument(
+            help="Recording file or folder (x-IMU3 sensor, per-sensor files), or several "
+            "files with one sensor type each (Gyroscope.csv Accelerometer.csv ...).",
+            show_default=False,
+        ),
+    ],
     output: Annotated[Path, typer.Option("--output", "-o", help="Output .h5/.hdf5 or .csv.")],
     method: MethodOption = "default",
     param: ParamOption = None,
@@ -50,14 +57,18 @@ def run(
         ),
     ] = 1_000_000,
 ) -> None:
-    """Estimate the orientation of a recording and save it (datasets `t` and `quat`)."""
+    """Estimate the orientation of a recording and save it (datasets `t` and `quat`).
+
+    Several files with one sensor type each (at their own rates) are merged onto the
+    gyroscope's timestamps first, as a folder of per-sensor files would be.
+    """
     from rich.progress import Progress
 
     from margtrack import methods
     from margtrack.bench.chunked import run_file
     from margtrack.io.safe_output import check_output
 
-    check_output(output, [path], force=force)  # before any reading or computing
+    check_output(output, paths, force=force)  # before any reading or computing
     cal = None
     if calibration is not None:
         from margtrack.calibration import load_calibration
@@ -71,9 +82,10 @@ def run(
     with reader_warnings(), Progress(
         console=err_console, transient=True, disable=not err_console.is_terminal
     ) as bar:
-        task = bar.add_task(f"{path.name}", total=None)
+        task = bar.add_task(", ".join(p.name for p in paths), total=None)
         result = run_file(
-            path, output, method, param or (), calibration=cal, frame=frame,
+            paths[0] if len(paths) == 1 else paths, output, method, param or (),
+            calibration=cal, frame=frame,
             read_kwargs=read_options(gyr_unit, acc_unit, mag_unit, time_unit, column, profile),
             chunk_samples=chunk_samples, force=force, on_warning=warn,
             progress=lambda done, total: bar.update(task, completed=done, total=total),

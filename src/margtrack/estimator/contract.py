@@ -24,7 +24,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 from abc import ABC, abstractmethod
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Generic, TypeVar
 
@@ -404,7 +404,7 @@ class Estimator(ABC, Generic[P, S]):
         if data is not None:
             if any(x is not None for x in (gyr, acc, mag, t, rate_hz)):
                 raise ValueError("give either a Recording or arrays, not both")
-            recs = [data] if isinstance(data, Recording) else list(data)
+            recs = [data] if isinstance(data, Recording) else _recordings(data)
             if not recs:
                 raise ValueError("run() got an empty list of recordings")
             for r in recs[1:]:
@@ -661,6 +661,22 @@ def _rows_of(state: State, rows: NDArray[np.intp]) -> dict[str, Array]:
             if value.shape[0] == n_sensors and f.name != "ready":
                 out[f.name] = value[rows].copy()
     return out
+
+
+def _recordings(data: object) -> list[Recording]:
+    """``data`` as a list of Recordings, or a TypeError saying what to pass instead."""
+    if hasattr(data, "columns") and hasattr(data, "iloc"):  # a pandas DataFrame (duck-typed)
+        raise TypeError(
+            "run() takes a Recording, not a pandas DataFrame: convert it first with "
+            "margtrack.io.from_dataframe(df, columns={...}, gyr_unit=..., acc_unit=...)"
+        )
+    items = list(data) if isinstance(data, Iterable) and not isinstance(data, str) else None
+    if items is None or not all(isinstance(r, Recording) for r in items):
+        raise TypeError(
+            f"run() takes a Recording or a list of Recordings, not {type(data).__name__}; "
+            "for arrays use run(gyr=..., acc=..., mag=..., t=...)"
+        )
+    return items
 
 
 def _squeezed(est: Estimate) -> Estimate:

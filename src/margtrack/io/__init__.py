@@ -2,7 +2,9 @@
 any delimited table through a column map, phone loggers, per-sensor files, DataFrames.
 
 :func:`read` picks the reader from the content of the path, :func:`write` the writer from
-the extension; the format-specific functions are re-exported here.
+the extension; the format-specific functions are re-exported here, and so are
+:func:`read_estimate` / :func:`is_estimate_file` for the estimate files ``margtrack run``
+writes.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import h5py
 from margtrack.io.broad import BroadTrial, broad_trials, read_broad
 from margtrack.io.csv import is_margtrack_csv, read_csv, write_csv, write_estimate_csv
 from margtrack.io.dataframe import from_dataframe
+from margtrack.io.estimate_reader import EstimateFile, is_estimate_file, read_estimate
 from margtrack.io.hdf5 import _naming_path, read_hdf5, write_estimate_hdf5, write_hdf5
 from margtrack.io.live_hdf5 import (
     LIVE_FORMAT,
@@ -33,14 +36,17 @@ from margtrack.units import unit_factor
 
 __all__ = [
     "BroadTrial",
+    "EstimateFile",
     "broad_trials",
     "flag_invalid",
     "from_dataframe",
+    "is_estimate_file",
     "load_profile",
     "read",
     "read_any",
     "read_broad",
     "read_csv",
+    "read_estimate",
     "read_hdf5",
     "read_live_recording",
     "read_sensor_files",

@@ -16,7 +16,7 @@ Used by :func:`margtrack.bench.chunked.run_file` (``margtrack run`` and ``batch`
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -213,14 +213,22 @@ class RecordingChunks:
 
 
 def open_chunks(
-    path: str | Path, chunk_samples: int = 1_000_000, **read_kwargs: Any
+    path: str | Path | Sequence[str | Path], chunk_samples: int = 1_000_000, **read_kwargs: Any
 ) -> RecordingChunks:
     """The recording at ``path`` as chunks of ``chunk_samples`` samples (module docstring).
+
+    A list of per-sensor files (one sensor type each) is read whole by
+    :func:`margtrack.io.read`, merged onto the gyroscope's timestamps.
 
     ``read_kwargs`` are those of :func:`margtrack.io.read`; a margtrack HDF5 file takes only
     the unit declarations (``gyr_unit``, ``acc_unit``, ``mag_unit``, ``time_unit``).
     Raises ``ValueError`` naming the file for an unreadable (truncated, damaged) HDF5 file.
     """
+    if not isinstance(path, str | Path):  # per-sensor files, merged when read (io.read)
+        from margtrack import io
+
+        files = [Path(x) for x in path]
+        return RecordingChunks(files[0], chunk_samples, whole=io.read(files, **read_kwargs))
     p = Path(path)
     if p.suffix.lower() in (".h5", ".hdf5") and p.is_file():
         try:

@@ -9,6 +9,9 @@ margtrack CSV (written by :func:`write_csv`, read back exactly by :func:`read_cs
 The ``mag``, ``quat_true`` and ``movement`` columns are present only when the Recording has
 them. Floats are written with ``repr`` (the shortest string that parses back to the same
 float64), so a write/read round trip is exact; ``movement`` is written as 0/1.
+
+Estimate CSV (:func:`write_estimate_csv`) is in :mod:`margtrack.io.estimate_csv`, re-exported
+here.
 """
 
 from __future__ import annotations
@@ -16,20 +19,29 @@ from __future__ import annotations
 import json
 import re
 import warnings
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from margtrack.frames import check_frame
+from margtrack.io.estimate_csv import (
+    CSV_BLOCK_ROWS,
+    EstimateCsvTable,
+    estimate_csv_table,
+    write_estimate_csv,
+)
 from margtrack.io.hdf5 import _existing_file, _naming_path, _writable, meta_to_json
 from margtrack.io.safe_output import atomic_output
 from margtrack.recording import Recording
 from margtrack.units import unit_factor
 
-__all__ = ["read_csv", "write_csv", "write_estimate_csv"]
+# the estimate table lives in margtrack.io.estimate_csv; its names stay importable from here
+__all__ = [
+    "EstimateCsvTable", "estimate_csv_table", "read_csv", "write_csv", "write_estimate_csv",
+]
 
 MAGIC = "# margtrack-recording"
 _FIRST_LINE = re.compile(r"^# margtrack-recording v(\d+) frame=(\S+) name=(.*)$")
@@ -297,109 +309,3 @@ def _read_mapped(
         str(path), data, units, rate_hz=rate_hz, frame=frame, name=path.stem, meta=meta,
         lines=lines, check_units=check_units, fix_where="read_csv", columns=mapping,
     )
-
-
-def _output_columns(name: str, value: NDArray[Any], n: int) -> tuple[list[str], NDArray[Any]]:
-    if value.shape[:1] != (n,):
-        raise ValueError(f"output {name!r} has shape {value.shape}; its first axis must be N={n}")
-    if "," in name or "\n" in name or not name:
-        raise ValueError(f"output name {name!r} must be non-empty without commas or line breaks")
-    if value.ndim == 1:
-        return [name], value[:, None]
-    flat = value.reshape(n, -1)
-    k = flat.shape[1]
-    suffixes = ["x", "y", "z"] if value.ndim == 2 and k == 3 else [str(j) for j in range(k)]
-    return [f"{name}_{s}" for s in suffixes], flat
-
-
-def write_estimate_csv(
-    path: str | Path, t: ArrayLike, quat: ArrayLike, outputs: Mapping[str, ArrayLike] | None = None
-) -> None:
-    """Write an orientation estimate as CSV: ``t_s,quat_w,quat_x,quat_y,quat_z,<outputs>``.
-
-    Parameters
-    ----------
-    path : file to create or overwrite (atomically: a temporary file renamed into place).
-    t : (N,) timestamps, s.
-    quat : (N, 4) orientation ``[w, x, y, z]`` of the body in the estimator's earth frame.
-    outputs : other per-sample series, name (with its unit, e.g. ``"bias_rad_s"``) to array
-        with first axis N. (N,) gives one column ``name``; (N, 3) gives ``name_x/_y/_z``;
-        any other shape is flattened row-major per sample to ``name_0 .. name_{k-1}``.
-        Booleans and integers (flags) are written as whole numbers (1, 0, 34).
-    """
-    table = estimate_csv_table(t, quat, outputs)
-    with atomic_output(_writable(path)) as tmp, tmp.open("w", encoding="utf-8") as f:
-        f.write(table.header())
-        for text in table.row_blocks():
-            f.write(text)
-
-
-#: rows formatted at a time when writing CSV (bounds the memory the text takes)
-CSV_BLOCK_ROWS = 10_000
-
-
-class EstimateCsvTable:
-    """The columns of an estimate as CSV: names, which are whole numbers, the values.
-
-    Built by :func:`estimate_csv_table`; :meth:`header` is the first line, :meth:`row_blocks`
-    the data lines, formatted ``CSV_BLOCK_ROWS`` at a time (floats with ``repr``: exact).
-    """
-
-    def __init__(self, names: list[str], integer: list[bool], blocks: list[NDArray[Any]]):
-        self.names = names
-        self.integer = integer
-        self.blocks = blocks
-
-    def header(self) -> str:
-        """The column names line, with its line break."""
-        return ",".join(self.names) + "\n"
-
-    def row_blocks(self) -> Iterator[str]:
-        """Successive strings of up to ``CSV_BLOCK_ROWS`` data lines, each ending in a break."""
-        n = self.blocks[0].shape[0]
-        for start in range(0, n, CSV_BLOCK_ROWS):
-            part = np.s_[start : start + CSV_BLOCK_ROWS]
-            columns: list[list[str]] = []
-            for block, first in zip(self.blocks, self._offsets(), strict=True):
-                for j in range(block.shape[1]):
-                    values = block[part, j]
-                    if self.integer[first + j]:
-                        columns.append(list(map(str, values.astype(np.int64).tolist())))
-                    else:
-                        columns.append(list(map(repr, values.tolist())))
-            yield "\n".join(map(",".join, zip(*columns, strict=True))) + "\n"
-
-    def _offsets(self) -> list[int]:
-        out, k = [], 0
-        for block in self.blocks:
-            out.append(k)
-            k += block.shape[1]
-        return out
-
-
-def estimate_csv_table(
-    t: ArrayLike, quat: ArrayLike, outputs: Mapping[str, ArrayLike] | None = None
-) -> EstimateCsvTable:
-    """The CSV columns of an estimate (see :func:`write_estimate_csv`), shapes and names checked."""
-    t_arr = np.asarray(t, dtype=np.float64)
-    q_arr = np.asarray(quat, dtype=np.float64)
-    if t_arr.ndim != 1:
-        raise ValueError(f"t must have shape (N,), got {t_arr.shape}")
-    n = t_arr.shape[0]
-    if q_arr.shape != (n, 4):
-        raise ValueError(f"quat must have shape ({n}, 4) to match t, got {q_arr.shape}")
-    names = ["t_s", "quat_w", "quat_x", "quat_y", "quat_z"]
-    blocks: list[NDArray[Any]] = [t_arr[:, None], q_arr]
-    integer: list[bool] = [False] * 5
-    for name, value in (outputs or {}).items():
-        arr = np.asarray(value)
-        if arr.dtype == bool:
-            arr = arr.astype(np.int64)
-        cols, flat = _output_columns(name, arr.astype(np.float64), n)
-        names += cols
-        integer += [np.issubdtype(arr.dtype, np.integer)] * len(cols)
-        blocks.append(flat)
-    duplicated = sorted({c for c in names if names.count(c) > 1})
-    if duplicated:
-        raise ValueError(f"output columns {duplicated} clash; rename the outputs")
-    return EstimateCsvTable(names, integer, blocks)

@@ -3,13 +3,14 @@
 HDF5 (``format="margtrack-estimate"``, version 1): datasets ``t`` (N,) s, ``quat`` (N, 4)
 ``[w, x, y, z]`` body to earth, one per output (``gyr_bias_rad_s`` (N, 3) ...) and
 ``flags`` (N,) (bits of :class:`margtrack.estimator.Flag`); attributes ``method``,
-``frame`` (earth frame of ``quat``), ``params`` (JSON).
+``frame`` (earth frame of ``quat``), ``params`` (JSON); a ``unit`` attribute per dataset.
 
-CSV: optional leading ``#`` lines (``key=value`` words such as ``frame=ENU method=robust``
-are read), then the header ``t_s,quat_w,quat_x,quat_y,quat_z,<outputs>``: a column
-``name`` is an (N,) output, ``name_x,name_y,name_z`` an (N, 3) one, ``flags`` the flags.
-A CSV without a ``frame=`` line does not say its earth frame: pass ``frame=`` to
-:meth:`EstimateFile.estimate`.
+CSV (:mod:`margtrack.io.estimate_csv`): leading ``#`` lines (``key=value`` words such as
+``frame=ENU method=robust`` are read; ``# params=`` holds the parameters as JSON and
+``# units`` each column's unit), then the header ``t_s,quat_w,quat_x,quat_y,quat_z,
+<outputs>``: a column ``name`` is an (N,) output, ``name_x,name_y,name_z`` an (N, 3) one,
+``flags`` the flags. A CSV without a ``frame=`` word (written before margtrack stated it)
+does not say its earth frame: pass ``frame=`` to :meth:`EstimateFile.estimate`.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from numpy.typing import NDArray
 
 from margtrack.estimator.contract import Estimate
 from margtrack.frames import check_frame
+from margtrack.io.estimate_csv import PARAMS_PREFIX, UNITS_PREFIX
 
 Array = NDArray[np.float64]
 
@@ -47,6 +49,7 @@ class EstimateFile:
     or None when the file does not say (a CSV without a ``frame=`` line). method : the
     method name or None. params : the parameters stored (HDF5), else empty. outputs :
     per-sample series by name (units in the names). flags : (N,) uint16 or None.
+    units : the unit of each dataset (HDF5) or column (CSV) the file states, else empty.
     """
 
     path: Path
@@ -57,6 +60,7 @@ class EstimateFile:
     params: dict[str, Any] = field(default_factory=dict)
     outputs: dict[str, NDArray[Any]] = field(default_factory=dict)
     flags: NDArray[np.uint16] | None = None
+    units: dict[str, str] = field(default_factory=dict)
 
     @property
     def n_samples(self) -> int:
@@ -159,11 +163,12 @@ def _read_hdf5(p: Path) -> EstimateFile:
         quat = np.asarray(f["quat"][()], dtype=np.float64)
         outputs = {k: f[k][()] for k in f if k not in ("t", "quat", "flags")}
         flags = f["flags"][()].astype(np.uint16) if "flags" in f else None
+        units = {k: str(_plain(f[k].attrs["unit"])) for k in f if "unit" in f[k].attrs}
     frame = attrs.get("frame")
     return EstimateFile(
         path=p, t=t, quat=quat, frame=None if frame is None else check_frame(str(frame)),
         method=None if attrs.get("method") is None else str(attrs["method"]),
-        params=dict(attrs.get("params") or {}), outputs=outputs, flags=flags,
+        params=dict(attrs.get("params") or {}), outputs=outputs, flags=flags, units=units,
     )
 
 
@@ -176,12 +181,22 @@ def _plain(value: Any) -> Any:
 
 
 def _csv_header(p: Path) -> tuple[dict[str, str], list[str], int]:
-    """``key=value`` pairs of the ``#`` lines, the column names, lines before the data."""
+    """``key=value`` pairs of the ``#`` lines, the column names, lines before the data.
+
+    The ``# params=`` line comes back whole under ``"params"`` (JSON), the ``# units`` line
+    as ``"unit:<column>"`` keys.
+    """
     stated: dict[str, str] = {}
     with p.open(encoding="utf-8-sig") as f:
         for i, line in enumerate(f):
             line = line.rstrip("\r\n")
-            if line.startswith("#"):
+            if line.startswith(PARAMS_PREFIX):
+                stated["params"] = line[len(PARAMS_PREFIX):]
+            elif line.startswith(UNITS_PREFIX):
+                stated.update(
+                    (f"unit:{k}", v) for k, v in _KEY_VALUE.findall(line[len(UNITS_PREFIX):])
+                )
+            elif line.startswith("#"):
                 stated.update(_KEY_VALUE.findall(line))
             elif line.strip():
                 return stated, [c.strip() for c in line.split(",")], i + 1
@@ -215,10 +230,26 @@ def _read_csv(p: Path) -> EstimateFile:
             outputs[name] = table[:, k]
         k += 1
     frame = stated.get("frame")
+    params: dict[str, Any] = {}
+    if "params" in stated:
+        try:
+            params = dict(json.loads(stated["params"]))
+        except (ValueError, TypeError) as exc:
+            raise ValueError(
+                f"{p}: the '# params=' line is not a JSON object ({exc}); remove the line "
+                "or write the file again"
+            ) from None
+    try:
+        frame = None if frame is None else check_frame(frame)
+    except ValueError:
+        raise ValueError(
+            f"{p}: its header says frame={frame}, which is neither NED nor ENU; correct the "
+            "'# margtrack-estimate' line or write the file again"
+        ) from None
+    units = {k.removeprefix("unit:"): v for k, v in stated.items() if k.startswith("unit:")}
     return EstimateFile(
-        path=p, t=table[:, 0], quat=table[:, 1:5],
-        frame=None if frame is None else check_frame(frame), method=stated.get("method"),
-        outputs=outputs, flags=flags,
+        path=p, t=table[:, 0], quat=table[:, 1:5], frame=frame, method=stated.get("method"),
+        params=params, outputs=outputs, flags=flags, units=units,
     )
 
 

@@ -9,9 +9,11 @@ and the same attributes, while holding one chunk in memory:
   output (``gyr_bias_rad_s`` ...) and ``flags`` (N,) uint16 (bits of
   :class:`~margtrack.estimator.Flag`), resizable and chunked; attributes ``format``,
   ``version``, ``method``, ``frame`` (the earth frame of ``quat``), ``params`` and
-  ``flag_bits`` (see :func:`margtrack.io.hdf5.write_estimate_hdf5`);
-- ``.csv``: the header ``t_s,quat_w,...`` (units in the column names) and the rows,
-  appended in blocks (see :func:`margtrack.io.csv.write_estimate_csv`).
+  ``flag_bits`` (see :func:`margtrack.io.hdf5.write_estimate_hdf5`); each dataset has a
+  ``unit`` attribute (:mod:`margtrack.io.output_units`);
+- ``.csv``: comment lines stating method, frame, parameters and each column's unit, the
+  header ``t_s,quat_w,...`` and the rows, appended in blocks (see
+  :mod:`margtrack.io.estimate_csv`).
 
 The file is written to a temporary file next to the output and renamed into place by
 :meth:`EstimateWriter.close` (:mod:`margtrack.io.safe_output`); an error or an abandoned
@@ -27,13 +29,14 @@ from typing import Any
 import h5py
 import numpy as np
 
-from margtrack.io.csv import estimate_csv_table
+from margtrack.io.estimate_csv import estimate_csv_table
 from margtrack.io.hdf5 import (
     estimate_arrays,
     estimate_attrs,
     estimate_outputs,
     write_estimate_attrs,
 )
+from margtrack.io.output_units import output_unit
 from margtrack.io.safe_output import AtomicFile
 
 __all__ = ["EstimateWriter", "estimate_fields"]
@@ -98,6 +101,7 @@ class EstimateWriter:
         self._h5: h5py.File | None = None
         self._text: Any = None
         self._columns: list[str] | None = None
+        self._header = ""
         self._layout: dict[str, tuple[tuple[int, ...], np.dtype[Any]]] | None = None
         self._attrs: dict[str, Any] | None = None
 
@@ -153,10 +157,11 @@ class EstimateWriter:
                 # about _CHUNK_BYTES per chunk, less when the first piece is short (a short
                 # run written at once stays a small file)
                 rows = max(1, min(_CHUNK_BYTES // row_bytes, 1 << 16, max(n, 1024)))
-                f.create_dataset(
+                dataset = f.create_dataset(
                     name, shape=(0, *shape), maxshape=(None, *shape), dtype=dtype,
                     chunks=(rows, *shape),
                 )
+                dataset.attrs["unit"] = output_unit(name, dtype)
             self._layout, self._attrs = layout, attrs
         else:
             self._same_run(layout, attrs)
@@ -168,15 +173,24 @@ class EstimateWriter:
             dataset[start : start + n] = value
 
     def _append_csv(self, estimate: Any, outputs: dict[str, Any]) -> None:
-        table = estimate_csv_table(estimate.t, estimate.quat, outputs)
+        table = estimate_csv_table(
+            estimate.t, estimate.quat, outputs, method=estimate.method, frame=estimate.frame,
+            params=dict(estimate.params),
+        )
+        header = table.header()
         if self._text is None:
             self._text = self._target.tmp.open("w", encoding="utf-8")
-            self._text.write(table.header())
-            self._columns = list(table.names)
+            self._text.write(header)
+            self._columns, self._header = list(table.names), header
         elif table.names != self._columns:
             raise ValueError(
                 f"{self.path}: this chunk has columns {table.names}, the file has "
                 f"{self._columns}; every chunk must come from the same run"
+            )
+        elif header != self._header:
+            raise ValueError(
+                f"{self.path}: this chunk states another method, frame or parameters than "
+                "the file's first chunk; every chunk must come from the same run"
             )
         for text in table.row_blocks():
             self._text.write(text)

@@ -21,6 +21,7 @@ import h5py
 import numpy as np
 from numpy.typing import ArrayLike
 
+from margtrack.io.output_units import output_unit
 from margtrack.io.safe_output import atomic_output
 from margtrack.recording import Recording
 from margtrack.units import UnitError
@@ -163,7 +164,8 @@ def write_estimate_hdf5(
         become HDF5 attributes as they are; anything else is stored as a JSON string and its
         name is listed in the JSON list attribute ``json_attrs``.
 
-    The file also carries ``format="margtrack-estimate"`` and ``version=1``.
+    The file also carries ``format="margtrack-estimate"`` and ``version=1``; each dataset
+    has a ``unit`` attribute (:mod:`margtrack.io.output_units`).
     """
     p = _writable(path)
     t_arr, q_arr = estimate_arrays(t, quat)
@@ -171,10 +173,8 @@ def write_estimate_hdf5(
     plain, as_json = estimate_attrs(attrs)
     with atomic_output(p) as tmp, h5py.File(tmp, "w") as f:
         write_estimate_attrs(f, plain, as_json)
-        f.create_dataset("t", data=t_arr)
-        f.create_dataset("quat", data=q_arr)
-        for name, arr in datasets.items():
-            f.create_dataset(name, data=arr)
+        for name, arr in {"t": t_arr, "quat": q_arr, **datasets}.items():
+            f.create_dataset(name, data=arr).attrs["unit"] = output_unit(name, arr.dtype)
 
 
 def estimate_arrays(t: ArrayLike, quat: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
