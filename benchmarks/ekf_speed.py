@@ -1,4 +1,4 @@
-"""Speed of Marins' EKF (``ekf``), approaches 2 and 1, next to ``ahrs.filters.EKF``.
+"""Speed of Marins' EKF (``ekf``), approaches 2 and 1 and the bias state, next to vqf and ahrs.
 
 Run ``python benchmarks/ekf_speed.py [--samples N] [--ahrs-samples N] [--calls N]``.
 
@@ -6,17 +6,20 @@ Input: the 16 BROAD trials of ../shared/data/broad concatenated (858,735 samples
 cut to ``--samples``), or a simulated random motion if the data are absent. Printed, best
 of 3 with compilation excluded:
 
-- batch throughput, samples/s: margtrack ``MarinsEkf.run`` with approach 2 (gyro +
-  Gauss-Newton quaternion, ``H = I``; 001's choice) and approach 1 (nine nonlinear
-  outputs) for 1 sensor, approach 2 for 8 sensors in one call, and approach 2 with one
-  Gauss-Newton iteration per sample; ``ahrs.filters.EKF`` (pure Python, a 4-state
-  quaternion EKF with acc/mag outputs, MARG because ``mag`` is given to its batch
-  constructor) on the first ``--ahrs-samples`` only (about 0.1 ms per sample);
+- batch throughput, samples/s and ns/sample: margtrack ``MarinsEkf.run`` with approach 2
+  (gyro + Gauss-Newton quaternion, ``H = I``; 001's choice) and approach 1 (nine
+  nonlinear outputs) for 1 sensor, approach 2 with the gyro bias state
+  (``bias_states=True``, 10 states), approach 2 for 8 sensors in one call, and approach 2
+  with one Gauss-Newton iteration per sample; ``vqf.VQF.updateBatch`` (C++) on the same
+  samples in the same run (the issue's reference: the ratio column against it);
+  ``ahrs.filters.EKF`` (pure Python, a 4-state quaternion EKF with acc/mag outputs,
+  MARG because ``mag`` is given to its batch constructor) on the first
+  ``--ahrs-samples`` only (about 0.1 ms per sample);
 - per-call cost of one live sample, µs: ``MarinsEkf.update`` and ahrs ``EKF.update``
   (which uses the magnetometer only when the object's ``mag`` attribute is set: it is);
 
-with ratios to margtrack's one-sensor approach-2 ``run``. The cost of approach 1 relative
-to approach 2 is 001's argument for approach 2.
+with ratios to vqf's batch (batch rows) and to ``MarinsEkf.update`` (live rows). The
+cost of approach 1 relative to approach 2 is 001's argument for approach 2.
 """
 
 from __future__ import annotations
@@ -54,7 +57,12 @@ def main() -> None:
     defaults = MarinsEkfParams()
     two = batch(defaults, "margtrack MarinsEkf.run, approach 2")
     one = batch(MarinsEkfParams(approach=1), "margtrack MarinsEkf.run, approach 1")
+    bias = batch(MarinsEkfParams(bias_states=True), "approach 2, bias_states (10 states)")
     single = batch(MarinsEkfParams(gn_max_iterations=1), "approach 2, 1 Gauss-Newton step")
+    import vqf
+
+    reference = measure("vqf VQF.updateBatch (C++)", lambda: vqf.VQF(1.0 / RATE_HZ).updateBatch(
+        gyr, acc, mag), n)
     iterations = MarinsEkf().run(gyr=gyr, acc=acc, mag=mag, t=t).outputs["iterations"]
     m = min(n, 100_000)
     stack = [np.ascontiguousarray(np.broadcast_to(x[:m], (N_SENSORS, m, 3)))
@@ -90,12 +98,14 @@ def main() -> None:
     print(f"\nbatch (compilation excluded; approach 2 default: at most "
           f"{defaults.gn_max_iterations} Gauss-Newton steps, {iterations.mean():.2f} on average)")
     print_table([
-        (two, ""),
+        (two, f"{1e3 * two.us_per_sample:.0f} ns/sample"),
         (one, f"approach 1 costs {two.samples_per_s / one.samples_per_s:.2f} x approach 2"),
+        (bias, f"{1e3 * bias.us_per_sample:.0f} ns/sample"),
         (single, ""),
         (multi, f"{N_SENSORS} x {m} samples"),
+        (reference, f"{1e3 * reference.us_per_sample:.0f} ns/sample"),
         (ahrs_batch, f"first {k} samples only"),
-    ], two, "approach 2")
+    ], reference, "vqf")
     print("\nlive, one sample per call")
     print_table([(update, "validation, state copy, kernel"), (ahrs_update, "")], update, "update")
 

@@ -23,7 +23,8 @@ pytestmark = pytest.mark.kernel
 
 Q0 = quat.from_euler([0.5, 0.2, -0.3])
 DIP = 62.0
-METHODS = [Bachmann, BachmannAccMag, MarinsEkf, lambda: MarinsEkf(approach=1)]
+METHODS = [Bachmann, BachmannAccMag, MarinsEkf, lambda: MarinsEkf(approach=1),
+           lambda: MarinsEkf(bias_states=True)]
 
 
 def _mems(seconds=6.0, rate=100.0, seed=3, **motion):
@@ -44,7 +45,7 @@ def _cut(rec, start, stop):
 
 
 # -- the start: the first usable sample of each sensor, vectorised --------------------------
-@pytest.mark.parametrize("make", [Bachmann, MarinsEkf])
+@pytest.mark.parametrize("make", [Bachmann, MarinsEkf, lambda: MarinsEkf(bias_states=True)])
 def test_each_sensor_starts_at_its_first_usable_sample_and_measures_its_dip_there(make):
     rec = sim.simulate(sim.static(1.0, 100.0, q0=Q0), dip_deg=DIP)
     zeros = (0, 4, 9)  # leading samples the screening turns into "no measurement"

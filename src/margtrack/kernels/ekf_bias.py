@@ -1,0 +1,93 @@
+"""Kernel of Marins' EKF with a gyroscope bias state: ``x = [ω, q, b]`` (10), in 003's spirit.
+
+001's rate model has no bias: a gyroscope bias enters its measured rate as signal, and
+the quaternion measurement has to pull the attitude back against it all the time. Here,
+as in 003's augmented state (eqs. 20-31, bias of the angular velocity as a state), the
+gyroscope measures ``ω + b + v`` and the bias is a random walk, ``ḃ = w_b`` with white
+``w_b`` of density ``σ_b`` (rad/s/√s), so over an interval h: ``b⁺ = b``,
+``Var Δb = σ_b² h``. Everything else is 001's model and update
+(:mod:`margtrack.kernels.ekf`): ``F = diag(F₇, I₃)``, ``Q = diag(Q₇, σ_b² h I₃)``, and
+the gyroscope rows of H are ``[I₃ 0 I₃]``. b is what is left after the still start's gyro
+null (when it is used), so the bias of the raw rate is ``null + b``.
+
+A restart after a gap keeps b and its covariance block (what is known of the sensor),
+like the dip and the null. Row: :mod:`margtrack.kernels.ekf`'s layout with n = 10, then
+the bias of the raw rate (``E_BIAS``, 3, rad/s) and its sd (``E_BIAS_SD``, 3). Extra
+outputs per sample: the rate state (3), the covariance diagonal (10), the Gauss-Newton
+iterations, the ``degenerate`` code, the gyro null (3), the bias of the raw rate (3) and
+its sd (3).
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+from margtrack.kernels import contract
+from margtrack.kernels.ekf import E_X, FASTMATH, hold_n, start_n, step_n
+
+N = 10  # [ω (3), q (4), b (3)]
+# the row and output offsets of ekf.offsets(N) and ekf.out_offsets(N)
+E_P = E_X + N  # 100: covariance, row-major
+E_PH = E_P + N * N  # 10: scratch of an update
+E_BIAS = E_PH + N  # 3: the bias of the raw rate, null + b, rad/s
+E_BIAS_SD = E_BIAS + 3  # 3: its sd, rad/s
+N_ROW = E_BIAS_SD + 3
+X_RATE = 0  # 3
+X_COV = 3  # 10
+X_ITER = X_COV + N
+X_CODE = X_ITER + 1
+X_NULL = X_CODE + 1  # 3
+X_BIAS = X_NULL + 3  # 3
+X_BIAS_SD = X_BIAS + 3  # 3
+N_OUT = X_BIAS_SD + 3
+
+__all__ = ["E_BIAS", "E_BIAS_SD", "E_P", "E_X", "N_ROW", "run", "start", "update", "update_one"]
+
+
+@njit(cache=True, inline="always")
+def _start(row, coef, first, qw, qx, qy, qz):
+    start_n(row, coef, first, qw, qx, qy, qz, N)
+
+
+@njit(cache=True, fastmath=FASTMATH)
+def _step(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
+    """:func:`margtrack.kernels.ekf.step_n` with the bias state (compiled once, called)."""
+    return step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out, N)
+
+
+@njit(cache=True, inline="always")
+def _hold(row, coef, x_out):
+    hold_n(row, coef, x_out, N)
+
+
+@njit(cache=True)
+def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """S sensors' N samples (``contract.run_series``)."""
+    contract.run_series(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
+                        q_out, x_out, flags_out)
+
+
+@njit(cache=True, parallel=True)
+def run_many(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """S sensors' N samples, shared among threads (``contract.run_series_parallel``)."""
+    contract.run_series_parallel(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
+                                 q_out, x_out, flags_out)
+
+
+@njit(cache=True)
+def update(rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """One sample of S sensors (``contract.update_samples``)."""
+    contract.update_samples(_start, _step, _hold, rows, clock, coefs, dt, gyr, acc, mag, has,
+                            q_out, x_out, flags_out)
+
+
+@njit(cache=True)
+def update_one(rows, clock, coefs, dt, g, a, m, has, out):
+    """One sample of one sensor (``contract.update_one``); returns the flags."""
+    return contract.update_one(_start, _step, _hold, rows, clock, coefs, dt, g, a, m, has, out)
+
+
+@njit(cache=True)
+def start(rows, coefs, quat0):
+    """Start S sensors at quat0 (S, 4) (``contract.start_rows``)."""
+    contract.start_rows(_start, rows, coefs, quat0)

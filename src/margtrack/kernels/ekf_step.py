@@ -1,0 +1,324 @@
+"""The per-sample step of Marins' EKF for a state of n = 7 or 10 numbers (001; 003's bias).
+
+The coefficient and row layouts (``C_*``, ``E_*``), the outputs (``X_*``) and the
+inline start, step and hold that :mod:`margtrack.kernels.ekf` (7 states) and
+:mod:`margtrack.kernels.ekf_bias` (10 states) compile with their n; the model, the
+measurements and the layouts are described in :mod:`margtrack.kernels.ekf`.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from margtrack.kernels import contract, rest_null
+from margtrack.kernels.davenport import field_from_dip, measured_dip
+from margtrack.kernels.ekf_model import (
+    axis_noise,
+    mirror,
+    predict_covariance,
+    scalar_update,
+    transition_terms,
+    vector_reading,
+)
+from margtrack.kernels.gauss_newton import gauss_newton_solve
+from margtrack.kernels.screen import ACC_IGNORED, MAG_IGNORED
+from margtrack.kernels.triad import (
+    OK,
+    SOLVER_FAILED,
+    ZERO_ACC,
+    ZERO_MAG,
+    unit_pair,
+)
+
+#: flag: the innovation variance of a measured component was not positive (or the update
+#: would leave a zero or non-finite quaternion): that and the later components were skipped
+NOT_PD = 5
+#: the gyroscope measurement is limited to this, rad/s per axis (no sensor reaches it)
+MAX_RATE_RAD_S = 1e6
+
+# -- coefficients (after the contract's screening coefficients) ---------------------------
+C_APPROACH = 0  # 1 or 2
+C_TAU = 1  # 3: τ per axis, s
+C_RATE_VAR = 4  # 3: driving-noise density², (rad/s)²/Hz
+C_GYR_VAR = 7  # 3: gyroscope noise density², (rad/s)²/Hz
+C_QUAT_VAR = 10  # 1/Hz
+C_ACC_VAR = 11  # (m/s²)²/Hz
+C_MAG_VAR = 12  # 1/Hz (relative to the field norm)
+C_GRAVITY2 = 13  # g², (m/s²)²
+C_MAG_WEIGHT = 14  # ρ
+C_GN_TOL = 15
+C_GN_MAX_IT = 16
+C_UP = 17  # 3: unit earth up
+C_NORTH = 20  # 3: unit earth north (horizontal)
+C_DIP = 23  # the given dip, rad (NaN: measure each sensor's)
+C_FIELD = 24  # 3: the unit field reference of the given dip
+C_INIT_RATE_VAR = 27  # (rad/s)²
+C_INIT_QUAT_VAR = 28
+C_GEN = 29  # generation of these coefficients (keys the row's interval constants)
+C_NULL = 30  # rest_null.N_RC: the gyro null's coefficients
+C_BIAS_WALK_VAR = C_NULL + rest_null.N_RC  # 3: bias random-walk density², (rad/s)²/s
+C_INIT_BIAS_VAR = C_BIAS_WALK_VAR + 3  # (rad/s)²: the bias's initial variance per axis
+N_COEF = C_INIT_BIAS_VAR + 1
+
+# -- one sensor's row (after the contract's slots; see the module docstring) -------------
+E_DIP = contract.N_CONTRACT  # measured dip, rad (NaN: not yet)
+E_FIELD = E_DIP + 1  # 3: unit field reference from it (NaN: not known)
+E_NULL = E_FIELD + 3  # rest_null.N_REST_NULL: the gyro null from the still start
+E_DT = E_NULL + rest_null.N_REST_NULL  # interval of the constants below, s (NaN: none)
+E_GEN = E_DT + 1  # coefficient generation they were computed with
+E_K = E_GEN + 1  # 18: a, c, Var Δω, Cov(Δφ, Δω), Var Δφ, σ_b² h (3 each)
+E_X = E_K + 18  # n: [ω (rad/s), q(, b (rad/s))]
+N = 7  # this module's state size
+E_P = E_X + N  # 49: covariance, row-major
+E_PH = E_P + N * N  # 7: scratch of an update
+N_ROW = E_PH + N
+
+# -- extra outputs per sample (7-state; out_offsets gives them for any n) -------------------
+X_RATE = 0  # 3
+X_COV = 3  # 7: the covariance diagonal
+X_ITER = 10
+X_CODE = 11
+X_NULL = 12  # 3
+N_OUT = 15
+
+
+@njit(cache=True, inline="always")
+def offsets(n):
+    """Row offsets of a state of size n: covariance, scratch, bias of the raw rate, its sd."""
+    p = E_X + n
+    ph = p + n * n
+    return p, ph, ph + n, ph + n + 3
+
+
+@njit(cache=True, inline="always")
+def out_offsets(n):
+    """Offsets in ``x_out``: covariance diagonal, iterations, code, null, bias, bias sd."""
+    return 3, 3 + n, 4 + n, 5 + n, 8 + n, 11 + n
+
+
+#: flag bits of each degenerate code (margtrack.estimator.flags): OK 0, ZERO_ACC, ZERO_MAG
+#: (the screening's flag stands; the accelerometer was used), PARALLEL, SOLVER_FAILED, NOT_PD
+_BOTH = ACC_IGNORED | MAG_IGNORED
+
+
+@njit(cache=True, inline="always")
+def _code_flags(code):
+    if code == ZERO_ACC:
+        return ACC_IGNORED
+    if code == OK or code == ZERO_MAG:
+        return 0
+    return _BOTH
+
+
+@njit(cache=True, inline="always")
+def _bias_outputs(row, n, nx, ny, nz):
+    """The bias of the raw rate (the null plus b) and its sd into the row."""
+    p, _, bias, bias_sd = offsets(n)
+    null = (nx, ny, nz)
+    for k in range(3):
+        row[bias + k] = null[k] + row[E_X + 7 + k]
+        row[bias_sd + k] = math.sqrt(max(row[p + (n + 1) * (7 + k)], 0.0))
+
+
+@njit(cache=True, inline="always")
+def start_n(row, coef, first, qw, qx, qy, qz, n):
+    """(Re)start at q with zero rate and the initial covariance; the first start also
+    forgets the dip, the gyro null and the bias (a restart keeps them, and b's covariance
+    block)."""
+    p = offsets(n)[0]
+    for k in range(3):
+        row[E_X + k] = 0.0
+    row[E_X + 3], row[E_X + 4], row[E_X + 5], row[E_X + 6] = qw, qx, qy, qz
+    for i in range(7):
+        for j in range(n):
+            row[p + i * n + j] = 0.0
+            row[p + j * n + i] = 0.0
+    for k in range(3):
+        row[p + (n + 1) * k] = coef[C_INIT_RATE_VAR]
+    for k in range(3, 7):
+        row[p + (n + 1) * k] = coef[C_INIT_QUAT_VAR]
+    row[E_DT] = math.nan
+    if first:
+        row[E_DIP] = math.nan
+        row[E_FIELD] = row[E_FIELD + 1] = row[E_FIELD + 2] = math.nan
+        rest_null.fresh_one(row, E_NULL)
+        for i in range(7, n):
+            row[E_X + i] = 0.0
+            for j in range(7, n):
+                row[p + i * n + j] = coef[C_INIT_BIAS_VAR] if i == j else 0.0
+    if n > 7:
+        k = E_NULL + rest_null.RN_NULL
+        _bias_outputs(row, n, row[k], row[k + 1], row[k + 2])
+
+
+@njit(cache=True, inline="always")
+def _outputs(row, x_out, iterations, code, nx, ny, nz, n):
+    p, _, bias, bias_sd = offsets(n)
+    o_cov, o_iter, o_code, o_null, o_bias, o_sd = out_offsets(n)
+    for k in range(3):
+        x_out[k] = row[E_X + k]
+    for k in range(n):
+        x_out[o_cov + k] = row[p + (n + 1) * k]
+    x_out[o_iter] = iterations
+    x_out[o_code] = code
+    x_out[o_null], x_out[o_null + 1], x_out[o_null + 2] = nx, ny, nz
+    if n > 7:
+        for k in range(3):
+            x_out[o_bias + k] = row[bias + k]
+            x_out[o_sd + k] = row[bias_sd + k]
+
+
+@njit(cache=True, inline="always")
+def _constants(row, coef, h):
+    """The interval's constants (``E_K``), recomputed when h or the coefficients change."""
+    if row[E_DT] != h or row[E_GEN] != coef[C_GEN]:
+        for k in range(3):
+            tau = coef[C_TAU + k]
+            row[E_K + k] = math.exp(-h / tau)
+            row[E_K + 3 + k] = -tau * math.expm1(-h / tau)
+            vw, cpw, vp = axis_noise(h, tau, coef[C_RATE_VAR + k])
+            row[E_K + 6 + k], row[E_K + 9 + k], row[E_K + 12 + k] = vw, cpw, vp
+            row[E_K + 15 + k] = coef[C_BIAS_WALK_VAR + k] * h
+        row[E_DT] = h
+        row[E_GEN] = coef[C_GEN]
+
+
+@njit(cache=True, inline="always")
+def _k3(row, o):
+    return row[E_K + o], row[E_K + o + 1], row[E_K + o + 2]
+
+
+@njit(cache=True, inline="always")
+def _update_vector(row, n, zv, jac, meas0, meas1, meas2, var, pw, px, py, pz):
+    """The three components of a unit vector reading, linearised at the prediction
+    ``q⁻ = (pw, px, py, pz)``; False at the first whose update failed."""
+    p, ph, _, _ = offsets(n)
+    meas = (meas0, meas1, meas2)
+    for i in range(3):
+        hr = jac[i]
+        nu = meas[i] - zv[i] - (hr[0] * (row[E_X + 3] - pw) + hr[1] * (row[E_X + 4] - px)
+                                + hr[2] * (row[E_X + 5] - py) + hr[3] * (row[E_X + 6] - pz))
+        if not scalar_update(row, E_X, p, n, ph, -1, -1, hr[0], hr[1], hr[2], hr[3], nu, var):
+            return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out, n):
+    """One screened sample: predict over h (0: output the state as it is), update from the
+    gyroscope and the accelerometer/magnetometer pair (module docstring); the flag bits."""
+    p, ph, _, _ = offsets(n)
+    nx, ny, nz = rest_null.step_one(
+        row, E_NULL, coef, C_NULL, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, h
+    )
+    gyr = (g0 - nx, g1 - ny, g2 - nz)
+    ux, uy, uz = coef[C_UP], coef[C_UP + 1], coef[C_UP + 2]
+    # the field reference: the given dip's, or from the sensor's first valid sample
+    if math.isnan(coef[C_DIP]):
+        if math.isnan(row[E_DIP]):
+            res = unit_pair(a0, a1, a2, m0, m1, m2)
+            if res[0] == OK:
+                dip = measured_dip(res[1], res[2], res[3], res[4], res[5], res[6])
+                row[E_DIP] = dip
+                row[E_FIELD], row[E_FIELD + 1], row[E_FIELD + 2] = field_from_dip(
+                    math.sin(dip), math.cos(dip), ux, uy, uz,
+                    coef[C_NORTH], coef[C_NORTH + 1], coef[C_NORTH + 2],
+                )
+        hx, hy, hz = row[E_FIELD], row[E_FIELD + 1], row[E_FIELD + 2]
+    else:
+        hx, hy, hz = coef[C_FIELD], coef[C_FIELD + 1], coef[C_FIELD + 2]
+    x = row[E_X : E_X + n]  # (one-dimensional views of the row cost nothing)
+    flag = OK
+    iterations = 0
+    if h > 0.0:
+        # -- prediction: x⁺ = f(x), P = F P Fᵀ + Q ----------------------------------------
+        _constants(row, coef, h)
+        a, c = _k3(row, 0), _k3(row, 3)
+        xn, g, f, _ = transition_terms(x[0], x[1], x[2], x[3], x[4], x[5], x[6],
+                                       a[0], a[1], a[2], c[0], c[1], c[2])
+        predict_covariance(row, p, n, a, c, g, f, _k3(row, 6), _k3(row, 9), _k3(row, 12),
+                           _k3(row, 15))
+        for k in range(7):
+            x[k] = xn[k]
+        pw, px, py, pz = x[3], x[4], x[5], x[6]
+        # -- measurement: the gyroscope (ω, or ω + b), then the pair ----------------------
+        ok = True
+        for k in range(3):
+            rate = min(max(gyr[k], -MAX_RATE_RAD_S), MAX_RATE_RAD_S)
+            if n > 7:
+                nu = rate - x[k] - x[7 + k]
+                kb = 7 + k
+            else:
+                nu = rate - x[k]
+                kb = -1
+            if ok:
+                ok = scalar_update(row, E_X, p, n, ph, k, kb, 0.0, 0.0, 0.0, 0.0, nu,
+                                   coef[C_GYR_VAR + k] / h)
+        approach = coef[C_APPROACH]
+        res = unit_pair(a0, a1, a2, m0, m1, m2)
+        flag = res[0]
+        if flag == ZERO_MAG:  # gravity direction alone (module docstring)
+            na = math.sqrt(a0 ** 2 + a1 ** 2 + a2 ** 2)
+            zv, jac = vector_reading(pw, px, py, pz, ux, uy, uz)
+            if approach == 2.0:
+                var = 16.0 * coef[C_QUAT_VAR] / h
+            else:
+                var = coef[C_ACC_VAR] / h / coef[C_GRAVITY2]
+            if ok:
+                ok = _update_vector(row, n, zv, jac, a0 / na, a1 / na, a2 / na, var,
+                                    pw, px, py, pz)
+        elif flag == OK:
+            ax, ay, az, mx, my, mz = res[1], res[2], res[3], res[4], res[5], res[6]
+            if approach == 2.0:
+                nq = math.sqrt(pw ** 2 + px ** 2 + py ** 2 + pz ** 2)
+                gn_ok, gw, gx, gy, gz, iterations, _ = gauss_newton_solve(
+                    ax, ay, az, mx, my, mz, ux, uy, uz, hx, hy, hz, pw / nq,
+                    px / nq, py / nq, pz / nq, coef[C_MAG_WEIGHT], coef[C_GN_TOL],
+                    int(coef[C_GN_MAX_IT]),
+                )
+                if gn_ok:
+                    if gw * pw + gx * px + gy * py + gz * pz < 0.0:
+                        gw, gx, gy, gz = -gw, -gx, -gy, -gz  # sign nearest q⁻
+                    meas = (gw, gx, gy, gz)
+                    var = coef[C_QUAT_VAR] / h
+                    for k in range(4):  # H = I on the quaternion: one component each
+                        if ok:
+                            ok = scalar_update(row, E_X, p, n, ph, 3 + k, -1, 0.0, 0.0, 0.0,
+                                               0.0, meas[k] - x[3 + k], var)
+                else:
+                    flag = SOLVER_FAILED
+            else:  # the gravity and field readings, linearised at the prediction
+                za, ja = vector_reading(pw, px, py, pz, ux, uy, uz)
+                zm, jm = vector_reading(pw, px, py, pz, hx, hy, hz)
+                if ok:
+                    ok = _update_vector(row, n, za, ja, ax, ay, az,
+                                        coef[C_ACC_VAR] / h / coef[C_GRAVITY2], pw, px, py, pz)
+                if ok:
+                    ok = _update_vector(row, n, zm, jm, mx, my, mz, coef[C_MAG_VAR] / h,
+                                        pw, px, py, pz)
+        mirror(row, p, n)
+        if not ok:
+            flag = NOT_PD
+        nq = math.sqrt(x[3] ** 2 + x[4] ** 2 + x[5] ** 2 + x[6] ** 2)
+        if not (nq > 0.0 and nq < math.inf):  # undo: keep the predicted attitude
+            flag = NOT_PD
+            x[3], x[4], x[5], x[6] = pw, px, py, pz
+            nq = math.sqrt(x[3] ** 2 + x[4] ** 2 + x[5] ** 2 + x[6] ** 2)
+        for k in range(3, 7):  # normalise after the update (001 Fig. 3)
+            x[k] /= nq
+    nq = math.sqrt(x[3] ** 2 + x[4] ** 2 + x[5] ** 2 + x[6] ** 2)
+    for k in range(4):
+        q_out[k] = x[3 + k] / nq
+    if n > 7:
+        _bias_outputs(row, n, nx, ny, nz)
+    _outputs(row, x_out, iterations, flag, nx, ny, nz, n)
+    return _code_flags(flag)
+
+
+@njit(cache=True, inline="always")
+def hold_n(row, coef, x_out, n):
+    """Outputs of a held sample (a sensor waiting for a usable sample): the state's."""
+    k = E_NULL + rest_null.RN_NULL
+    _outputs(row, x_out, 0, OK, row[k], row[k + 1], row[k + 2], n)
