@@ -198,6 +198,9 @@ def main() -> None:
     print("\nlive, one sample per call")
     print_table([(update, "one compiled call (screening + filter)"), (ahrs_update, "")], update,
                 "update")
+    from multi_sensor_speed import print_floors  # the sibling benchmark's floors
+
+    print_floors(gyr)
 
 
 if __name__ == "__main__":

@@ -129,6 +129,9 @@ def main() -> None:
         f"\nBachmann.run (1 sensor) is {base.ratio_to(vqf):.2f}x vqf's updateBatch; "
         f"15 sensors at once: {many.ratio_to(vqf):.2f}x per sample."
     )
+    from multi_sensor_speed import print_floors  # the sibling benchmark's floors
+
+    print_floors(gyr)
 
 
 if __name__ == "__main__":

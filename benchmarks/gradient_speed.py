@@ -127,6 +127,9 @@ def main() -> None:
           f"({many.ratio_to(vqf):.2f}x with {N_SENSORS} sensors per call); "
           f"update() costs {upd.us_per_sample:.1f} us per call, "
           f"{per_call[2][0].us_per_sample / upd.us_per_sample:.2f}x less than ahrs updateMARG.")
+    from multi_sensor_speed import print_floors  # the sibling benchmark's floors
+
+    print_floors(gyr)
 
 
 if __name__ == "__main__":

@@ -23,6 +23,9 @@ must move per sample, 9 input and 4 output float64 = 104 bytes, over this machin
 bandwidth measured here with numpy) and the serial-chain floor (one quaternion
 integration step per sample, a minimal numba loop over one stream, the shortest
 dependent chain any filter has), each divided by the threads for the many-sensor case.
+Also printed: the input screening alone (``kernels/screen.py``, which every method runs
+before its own step) over the sensors' windows on one thread, and the load average before
+and after (the machine may be shared: figures under load are slower).
 """
 
 from __future__ import annotations
@@ -91,6 +94,35 @@ def floors_ns(gyr: np.ndarray, repeats: int) -> tuple[float, float]:
     return 1e9 * BYTES_PER_SAMPLE / bandwidth, 1e9 * chain / gyr.shape[0]
 
 
+def print_floors(gyr: np.ndarray, repeats: int = 3) -> None:
+    """Print the two floors (one thread) for the rates of ``gyr`` (N, 3); for the other
+    speed benchmarks, so each shows its ns/sample beside them."""
+    memory_ns, chain_ns = floors_ns(np.ascontiguousarray(gyr), repeats)
+    print(f"floors per sample, one thread: memory {memory_ns:.1f} ns ({BYTES_PER_SAMPLE} B at "
+          f"the measured copy bandwidth), serial chain {chain_ns:.1f} ns (quaternion "
+          "integration); load average " + " ".join(f"{x:.2f}" for x in os.getloadavg()))
+
+
+def screening_ns(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, repeats: int) -> float:
+    """ns per sample of the input screening alone over (S, N, 3) arrays, one thread."""
+    from margtrack.kernels import screen
+
+    coef = methods.create("bachmann")._coefs[: screen.N_COEF].copy()
+    n = gyr.shape[1]
+    dts = np.full(n, 1.0 / RATE_HZ)
+    dts[0] = 0.0
+    tflags = np.zeros(n, dtype=np.int64)
+    outs = [np.empty_like(gyr) for _ in range(3)]
+    flags = np.empty(gyr.shape[:2], dtype=np.uint16)
+    state = np.empty((gyr.shape[0], screen.N_SCREEN))
+
+    def run() -> None:
+        screen.fresh(state)
+        screen.screen_samples(coef, dts, tflags, gyr, acc, mag, True, True, state, *outs, flags)
+
+    return 1e9 * best_seconds(run, repeats) / flags.size
+
+
 def vqf_batch(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray) -> Callable[[], object]:
     """A fresh vqf filter per sensor over (S, N, 3) arrays, one updateBatch each."""
     from vqf import VQF
@@ -131,8 +163,11 @@ def main() -> None:
     memory_ns, chain_ns = floors_ns(stream[0], args.repeats)
     print(f"input: {source}; {args.sensors} sensors x {args.samples} samples, and one stream "
           f"of {args.stream:,} samples; {threads} numba threads on {os.cpu_count()} CPUs")
+    print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print(f"floors per sample, one thread: memory {memory_ns:.1f} ns ({BYTES_PER_SAMPLE} B), "
           f"serial chain {chain_ns:.1f} ns (quaternion integration)")
+    print(f"input screening alone, one thread: {screening_ns(*windows, args.repeats):.1f} ns "
+          "per sample (every method runs it before its step)")
     try:
         vqf_many = args.sensors * args.samples / best_seconds(vqf_batch(*windows), args.repeats)
         vqf_one = args.stream / best_seconds(vqf_batch(*(x[None] for x in stream)), args.repeats)
@@ -152,6 +187,7 @@ def main() -> None:
     print(f"floors with {threads} threads over the sensors: memory {memory_ns / threads:.1f} ns, "
           f"serial chain {chain_ns / threads:.1f} ns; one stream: {memory_ns:.1f} and "
           f"{chain_ns:.1f} ns")
+    print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 
 if __name__ == "__main__":

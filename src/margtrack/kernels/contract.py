@@ -73,12 +73,14 @@ def initial(scoef, a0, a1, a2, m0, m1, m2):
 
 
 @njit(cache=True, inline="always")
-def _sample(start, step, hold, row, coef, scoef, dt, tflags, g0, g1, g2, a0, a1, a2,
+def _sample(start, step, hold, row, coef, scoef, dt, k_ref, tflags, g0, g1, g2, a0, a1, a2,
             m0, m1, m2, has_mag, has_gyr, q_out, x_out):
-    """One sensor, one sample: screen, (re)start when due, step or hold; returns flags."""
+    """One sensor, one sample: screen, (re)start when due, step or hold; returns flags.
+
+    ``k_ref`` is ``screen.ref_gain(dt)``, shared by the sensors of a sample."""
     sc = row[K_SCREEN : K_SCREEN + screen.N_SCREEN]
-    f, g0, g1, g2, a0, a1, a2, m0, m1, m2 = screen.screen_one(
-        scoef, sc, dt, tflags, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, has_gyr
+    f, g0, g1, g2, a0, a1, a2, m0, m1, m2 = screen.screen_one_k(
+        scoef, sc, dt, k_ref, tflags, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, has_gyr
     )
     if tflags & screen.GAP:
         row[K_READY] = 0.0
@@ -101,23 +103,26 @@ def _sample(start, step, hold, row, coef, scoef, dt, tflags, g0, g1, g2, a0, a1,
 
 @njit(cache=True, inline="always")
 def _clock_series(clock, max_gap, t):
-    """The shared clock over timestamps ``t`` (N,): intervals (N,) s and clock flags (N,)."""
+    """The shared clock over timestamps ``t`` (N,): intervals (N,) s, clock flags (N,) and
+    the screening's reference gains (N,) (``screen.ref_gain``, once per sample)."""
     n = t.shape[0]
     dts = np.empty(n)
+    ks = np.empty(n)
     tflags = np.empty(n, dtype=np.int64)
     for i in range(n):
         dts[i], tflags[i] = screen.time_one(clock, max_gap, t[i])
-    return dts, tflags
+        ks[i] = screen.ref_gain(dts[i])
+    return dts, ks, tflags
 
 
 @njit(cache=True, inline="always")
-def _sensor_series(start, step, hold, row, coef, scoef, dts, tflags, gyr, acc, mag,
+def _sensor_series(start, step, hold, row, coef, scoef, dts, ks, tflags, gyr, acc, mag,
                    has_mag, has_gyr, q_out, x_out, flags_out):
     """One sensor's N samples: gyr, acc, mag (N, 3); q_out (N, 4), x_out (N, K), flags_out
     (N,) filled."""
     for i in range(dts.shape[0]):
         flags_out[i] = _sample(
-            start, step, hold, row, coef, scoef, dts[i], tflags[i],
+            start, step, hold, row, coef, scoef, dts[i], ks[i], tflags[i],
             gyr[i, 0], gyr[i, 1], gyr[i, 2], acc[i, 0], acc[i, 1], acc[i, 2],
             mag[i, 0], mag[i, 1], mag[i, 2], has_mag, has_gyr, q_out[i], x_out[i],
         )
@@ -135,9 +140,9 @@ def run_series(start, step, hold, rows, clock, coefs, t, gyr, acc, mag, has, q_o
     """
     scoef, coef = coefs[:N_SCOEF], coefs[N_SCOEF:]
     has_mag, has_gyr = (has & 1) != 0, (has & 2) != 0
-    dts, tflags = _clock_series(clock, scoef[screen.C_MAX_GAP], t)
+    dts, ks, tflags = _clock_series(clock, scoef[screen.C_MAX_GAP], t)
     for s in range(rows.shape[0]):
-        _sensor_series(start, step, hold, rows[s], coef, scoef, dts, tflags, gyr[s], acc[s],
+        _sensor_series(start, step, hold, rows[s], coef, scoef, dts, ks, tflags, gyr[s], acc[s],
                        mag[s], has_mag, has_gyr, q_out[s], x_out[s], flags_out[s])
 
 
@@ -149,9 +154,9 @@ def run_series_parallel(start, step, hold, rows, clock, coefs, t, gyr, acc, mag,
     the results are identical."""
     scoef, coef = coefs[:N_SCOEF], coefs[N_SCOEF:]
     has_mag, has_gyr = (has & 1) != 0, (has & 2) != 0
-    dts, tflags = _clock_series(clock, scoef[screen.C_MAX_GAP], t)
+    dts, ks, tflags = _clock_series(clock, scoef[screen.C_MAX_GAP], t)
     for s in prange(rows.shape[0]):
-        _sensor_series(start, step, hold, rows[s], coef, scoef, dts, tflags, gyr[s], acc[s],
+        _sensor_series(start, step, hold, rows[s], coef, scoef, dts, ks, tflags, gyr[s], acc[s],
                        mag[s], has_mag, has_gyr, q_out[s], x_out[s], flags_out[s])
 
 
@@ -169,9 +174,10 @@ def update_samples(start, step, hold, rows, clock, coefs, dt_given, gyr, acc, ma
     q_out (S, 4), x_out (S, K), flags_out (S,) filled."""
     scoef, coef = coefs[:N_SCOEF], coefs[N_SCOEF:]
     dt, tflags = _clock_step(clock, scoef, dt_given)
+    k_ref = screen.ref_gain(dt)
     for s in range(rows.shape[0]):
         flags_out[s] = _sample(
-            start, step, hold, rows[s], coef, scoef, dt, tflags,
+            start, step, hold, rows[s], coef, scoef, dt, k_ref, tflags,
             gyr[s, 0], gyr[s, 1], gyr[s, 2], acc[s, 0], acc[s, 1], acc[s, 2],
             mag[s, 0], mag[s, 1], mag[s, 2], (has & 1) != 0, (has & 2) != 0,
             q_out[s], x_out[s],
@@ -187,8 +193,9 @@ def update_one(start, step, hold, rows, clock, coefs, dt_given, g, a, m, has, ou
     scoef, coef = coefs[:N_SCOEF], coefs[N_SCOEF:]
     dt, tflags = _clock_step(clock, scoef, dt_given)
     return _sample(
-        start, step, hold, rows[0], coef, scoef, dt, tflags, g[0], g[1], g[2], a[0], a[1],
-        a[2], m[0], m[1], m[2], (has & 1) != 0, (has & 2) != 0, out[:4], out[4:],
+        start, step, hold, rows[0], coef, scoef, dt, screen.ref_gain(dt), tflags, g[0], g[1],
+        g[2], a[0], a[1], a[2], m[0], m[1], m[2], (has & 1) != 0, (has & 2) != 0, out[:4],
+        out[4:],
     )
 
 
