@@ -1,37 +1,49 @@
 """How many sensors the live engine sustains in real time at 100 Hz, and what limits it.
 
-For each method (Bachmann's filter ``bachmann``, 000 Appendix A, and the default method), in
-one run on this machine:
+For each method (Bachmann's filter ``bachmann``, 000 Appendix A, and the default method,
+``robust``), in one run on this machine:
 
-1. kernel rate: the method's numba kernel alone on prepared arrays, S = 3000 sensors x 100
-   samples (a compiled method's ``kernel.run``, screening included; otherwise
-   ``Estimator._process``), and ``Estimator.run`` around it (validation, copies);
-2. real-time runs: simulated people (``PeopleSimulation``, 15 sensors each, walking, MEMS
+1. filter rates: ``Estimator.run`` on S = 3000 sensors x 10 samples (what the engine calls
+   per batch: validation, state copy, the compiled kernel) and the kernel's multi-sensor
+   entry alone (``kernel.run_many``, threads over sensors) on prepared arrays;
+2. throughput: the engine fed as fast as it takes (an unpaced replay, 4 frames a batch,
+   25 Hz display, every person's body model) at the largest S tried, in CPU and wall time:
+   the sensors it could carry at 100 Hz if nothing else ran on the machine;
+3. real-time runs: simulated people (``PeopleSimulation``, 15 sensors each, walking, MEMS
    noise) tiled to S sensors and replayed at real speed (``ReplaySource``, 100 Hz, looping)
    into an ``Engine`` with the body model of every person, a 25 Hz display clock and one
    subscriber, for ``--seconds`` s. S is *sustained* when at the end the engine is less than
-   0.1 s of data behind real time and the 95th percentile of the published poses' latency
-   (frame arrival to publishing) is under 0.1 s. S doubles until a run fails, then the gap
-   is bisected;
-3. where the time goes at the largest sustained S: the worker thread's busy time split into
-   the filters' kernel (kernel rate x samples), the Python around the filters (``run``
-   minus kernel: validation, contiguous copies, state copies), the body model (000 eqs. 7,
-   11 for every person at 25 Hz), publishing, and polling the source / assembling frames.
+   0.1 s of session time behind real time and the 95th percentile of the published poses'
+   latency (frame arrival to publishing) is under 0.1 s; a failed run is repeated once
+   (the machine is shared). S doubles until a run fails, then the gap is bisected;
+4. where the time goes at the largest sustained S: the worker's busy time split into the
+   filters (the estimator's ``run`` and the per-sensor isolation around it), the body model
+   (000 eqs. 7, 11 for every person at 25 Hz), publishing, and polling / assembling frames;
+   with ``--profile``, a cProfile of an unpaced run at that S: its top entries and the
+   filters' time split into the kernel, the rest of ``run`` (validation, input and state
+   copies) and the live code around it.
 
-The paper's system ran 3 real + 13 simulated sensors at 100 Hz on an 866 MHz Pentium III.
+The machine is shared: the load average is printed beside every figure (2 cores here; a
+load above 2 means other processes took CPU from the engine and its figures are lower
+bounds). The paper's system ran 3 real + 13 simulated sensors at 100 Hz on an 866 MHz
+Pentium III.
 
-Run: python benchmarks/live_scale.py [--seconds 3] [--methods bachmann default]
+Run: python benchmarks/live_scale.py [--seconds 3] [--methods bachmann default] [--profile]
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
+import io
+import math
+import os
+import pstats
 import time
 
 import numpy as np
 
 from margtrack import methods
-from margtrack.estimator.compiled import CompiledEstimator
 from margtrack.live.engine import Engine
 from margtrack.live.replay import ReplaySource
 from margtrack.live.simulator import PeopleSimulation
@@ -40,6 +52,11 @@ from margtrack.sim import DEFAULT_DIP_DEG
 RATE_HZ = 100.0
 LOOP_FRAMES = 50  # 0.5 s of motion, replayed in a loop (memory: S x 50 x 9 doubles)
 BASE_PEOPLE = 8
+
+
+def load() -> str:
+    """The 1-minute load average, as text."""
+    return f"load {os.getloadavg()[0]:.1f}"
 
 
 def params(method: str) -> dict[str, float]:
@@ -55,7 +72,8 @@ def base_signals() -> tuple[np.ndarray, ...]:
     return t, gyr, acc, mag, people.skeleton.names
 
 
-def tiled_source(base: tuple[np.ndarray, ...], n_people: int) -> ReplaySource:
+def tiled_source(base: tuple[np.ndarray, ...], n_people: int, speed: float = 1.0,
+                 chunk_frames: int | None = None) -> ReplaySource:
     t, gyr, acc, mag, segments = base
     reps = -(-n_people // BASE_PEOPLE)
     k = len(segments)
@@ -64,12 +82,12 @@ def tiled_source(base: tuple[np.ndarray, ...], n_people: int) -> ReplaySource:
         return np.tile(x, (reps, 1, 1))[: n_people * k]
 
     names = [f"p{a}/{s}" for a in range(n_people) for s in segments]
-    return ReplaySource(t, tile(gyr), tile(acc), tile(mag), names, speed=1.0, loop=True,
-                        description=f"{n_people} simulated people")
+    return ReplaySource(t, tile(gyr), tile(acc), tile(mag), names, speed=speed, loop=True,
+                        chunk_frames=chunk_frames, description=f"{n_people} simulated people")
 
 
-def kernel_rates(method: str, n_sensors: int = 3000, n: int = 100) -> tuple[float, float]:
-    """Samples/s of the kernel alone and of ``run`` (S sensors, n samples per call)."""
+def filter_rates(method: str, n_sensors: int = 3000, n: int = 10) -> tuple[float, float]:
+    """Samples/s of the kernel's multi-sensor entry alone and of ``run`` (S x n per call)."""
     rng = np.random.default_rng(0)
     gyr = rng.normal(0, 0.5, (n_sensors, n, 3))
     acc = rng.normal(0, 0.5, (n_sensors, n, 3)) + [0.0, 0.0, 9.81]
@@ -77,34 +95,58 @@ def kernel_rates(method: str, n_sensors: int = 3000, n: int = 100) -> tuple[floa
     t = np.arange(n) / RATE_HZ
     est = methods.create(method, params(method))
     est.run(gyr=gyr, acc=acc, mag=mag, t=t, check_units=False)  # compile / load the cache
-    reps = 10
+    reps = 20
     start = time.perf_counter()
     for r in range(reps):
         est.run(gyr=gyr, acc=acc, mag=mag, t=t + (r + 1) * n / RATE_HZ, check_units=False)
     run_rate = reps * n_sensors * n / (time.perf_counter() - start)
     state = est.state
-    if isinstance(est, CompiledEstimator):
-        # the compiled entry point on its own (screening and method, one call per series)
-        width = max(sum(w for _, w in est.outputs_layout), 1)
-        q, x = np.empty((n_sensors, n, 4)), np.empty((n_sensors, n, width))
-        flags = np.empty((n_sensors, n), dtype=np.uint16)
-        series = [t + (reps + r + 1) * n / RATE_HZ for r in range(reps + 1)]  # no gap
-        for a in (gyr, acc, mag, *series):  # as run() passes them: the same specialisation
-            a.flags.writeable = False
-        est.kernel.run(state.rows, state.clock, est._coefs, series[0], gyr, acc, mag, 3, q, x,
-                       flags)  # warm-up (loads the cache)
-        start = time.perf_counter()
-        for times in series[1:]:
-            est.kernel.run(state.rows, state.clock, est._coefs, times, gyr, acc, mag, 3, q, x,
-                           flags)
-        kernel_rate = reps * n_sensors * n / (time.perf_counter() - start)
-        return kernel_rate, run_rate
-    dt = np.full(n, 1.0 / RATE_HZ)
+    width = max(sum(w for _, w in est.outputs_layout), 1)
+    q, x = np.empty((n_sensors, n, 4)), np.empty((n_sensors, n, width))
+    flags = np.empty((n_sensors, n), dtype=np.uint16)
+    series = [t + (reps + r + 1) * n / RATE_HZ for r in range(reps + 1)]  # no gap
+    for a in (gyr, acc, mag, *series):  # as run() passes them: the same specialisation
+        a.flags.writeable = False
+    kernel = est.kernel.run_many
+    kernel(state.rows, state.clock, est._coefs, series[0], gyr, acc, mag, 3, q, x, flags)
     start = time.perf_counter()
-    for _ in range(reps):
-        est._process(state, gyr, acc, mag, dt)
+    for times in series[1:]:
+        kernel(state.rows, state.clock, est._coefs, times, gyr, acc, mag, 3, q, x, flags)
     kernel_rate = reps * n_sensors * n / (time.perf_counter() - start)
     return kernel_rate, run_rate
+
+
+def throughput(method: str, base: tuple[np.ndarray, ...], n_people: int, frames: int = 200,
+               profile: bool = False) -> dict:
+    """The engine unpaced (4 frames a batch): frames per second of CPU and of wall time."""
+    source = tiled_source(base, n_people, speed=math.inf, chunk_frames=4)
+    engine = Engine(source.info, method, params(method), display_hz=25.0)
+    engine.subscribe(lambda pose: None)
+    source.open()
+    for _ in range(30):  # warm-up past the first second (the magnetic norm references)
+        engine.push(source.poll(0.0))
+    profiler = cProfile.Profile() if profile else None
+    wall, cpu, done = time.perf_counter(), time.process_time(), 0
+    if profiler is not None:
+        profiler.enable()
+    while done < frames:
+        chunks = source.poll(0.0)
+        done += chunks[0].n_frames
+        engine.push(chunks)
+    if profiler is not None:
+        profiler.disable()
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    n_sensors = source.info.n_sensors
+    out = {"sensors": n_sensors, "frames": done, "wall_s": wall, "cpu_s": cpu,
+           "wall_sensors": n_sensors * done / wall / RATE_HZ,
+           "cpu_sensors": n_sensors * done / cpu / RATE_HZ * os.cpu_count(),
+           "stats": engine.stats()}
+    if profiler is not None:
+        text = io.StringIO()
+        pstats.Stats(profiler, stream=text).sort_stats("tottime").print_stats(10)
+        out["profile"] = text.getvalue()
+        out["split"] = profile_split(profiler, done)
+    return out
 
 
 def realtime(method: str, base: tuple[np.ndarray, ...], n_people: int, seconds: float) -> dict:
@@ -115,7 +157,7 @@ def realtime(method: str, base: tuple[np.ndarray, ...], n_people: int, seconds: 
     with engine.start(source):
         time.sleep(seconds)
         now = time.perf_counter()
-        behind_s = (now - source.started_s) + float(source.t_s[0]) - engine.data_time_s
+        behind_s = (now - source.started_s) - engine.session_time_s  # session: 0 at start
         stats = engine.stats()
     busy = stats.time_filter_s + stats.time_body_s + stats.time_publish_s
     return {
@@ -131,6 +173,7 @@ def realtime(method: str, base: tuple[np.ndarray, ...], n_people: int, seconds: 
         "busy_s": busy + stats.time_assemble_s,
         "wall_s": seconds,
         "error": stats.error,
+        "load": load(),
     }
 
 
@@ -138,16 +181,27 @@ def row(r: dict) -> str:
     return (f"  {r['sensors']:>7} sensors ({r['people']:>5} people): "
             f"behind {r['behind_s']:7.3f} s, "
             f"latency p50 {r['p50_ms']:7.1f} ms p95 {r['p95_ms']:7.1f} ms, {r['frames']} frames "
-            f"in {r['batches']} batches -> {'sustained' if r['ok'] else 'NOT sustained'}"
-            + (f" ({r['error']})" if r["error"] else ""))
+            f"in {r['batches']} batches -> {'sustained' if r['ok'] else 'NOT sustained'} "
+            f"[{r['load']}]" + (f" ({r['error']})" if r["error"] else ""))
 
 
-def search(method: str, base: tuple[np.ndarray, ...], seconds: float, max_people: int) -> dict:
+def tried(method: str, base: tuple[np.ndarray, ...], n_people: int, seconds: float) -> dict:
+    """A real-time run, repeated once if it failed (the machine is shared: a run fails when
+    other processes take the CPU for long enough)."""
+    r = realtime(method, base, n_people, seconds)
+    print(row(r), flush=True)
+    if not r["ok"]:
+        r = realtime(method, base, n_people, seconds)
+        print(row(r) + " (repeated)", flush=True)
+    return r
+
+
+def search(method: str, base: tuple[np.ndarray, ...], seconds: float, start: int,
+           max_people: int) -> dict | None:
     """Largest sustained people count by doubling, then bisection (module docstring)."""
-    n, best, worst = 100, None, None
+    n, best, worst = start, None, None
     while n <= max_people:
-        r = realtime(method, base, n, seconds)
-        print(row(r), flush=True)
+        r = tried(method, base, n, seconds)
         if not r["ok"]:
             worst = n
             break
@@ -158,8 +212,7 @@ def search(method: str, base: tuple[np.ndarray, ...], seconds: float, max_people
         if hi - lo <= max(lo // 8, 1):
             break
         mid = (lo + hi) // 2
-        r = realtime(method, base, mid, seconds)
-        print(row(r), flush=True)
+        r = tried(method, base, mid, seconds)
         if r["ok"]:
             best, lo = r, mid
         else:
@@ -167,21 +220,50 @@ def search(method: str, base: tuple[np.ndarray, ...], seconds: float, max_people
     return best
 
 
-def breakdown(best: dict, kernel_rate: float) -> str:
+def breakdown(best: dict) -> str:
+    """The worker's measured time split of a real-time run."""
     st = best["stats"]
     wall = best["wall_s"]
-    kernel = st.samples / kernel_rate
     parts = {
-        "filter kernel (numba)": kernel,
-        "Python around the filters": max(st.time_filter_s - kernel, 0.0),
+        "filters (estimator run + isolation)": st.time_filter_s,
         "body model + recording": st.time_body_s,
         "publishing": st.time_publish_s,
         "source polling + frame assembly": st.time_assemble_s,
     }
     lines = [f"  worker busy {best['busy_s'] / wall * 100:.0f} % of {wall:.1f} s wall time:"]
     for name, seconds in parts.items():
-        lines.append(f"    {name:<34} {seconds / wall * 100:5.1f} % of wall time "
+        lines.append(f"    {name:<36} {seconds / wall * 100:5.1f} % of wall time "
                      f"({seconds / max(st.frames, 1) * 1e3:.3f} ms per frame)")
+    return "\n".join(lines)
+
+
+def profile_split(profiler: cProfile.Profile, frames: int) -> str:
+    """Where an unpaced run's time went, from its cProfile (cumulative times per layer)."""
+    entries = pstats.Stats(profiler).stats  # (file, line, name) -> (cc, nc, tt, ct, callers)
+
+    def total(path: str, name: str, own: bool = False) -> float:
+        return sum(v[2] if own else v[3] for (f, _, n), v in entries.items()
+                   if f.endswith(path) and n == name)
+
+    kernel = sum(v[2] for (f, _, n), v in entries.items()
+                 if "/kernels/" in f and n in ("run", "run_many"))
+    run = total("estimator/compiled.py", "_run_arrays") or total("estimator/contract.py", "run")
+    filters = total("live/filtering.py", "run")
+    pose = total("live/avatars.py", "pose")
+    push = total("live/engine.py", "push")
+    process = total("live/engine.py", "process")
+    parts = {
+        "filter kernel (numba, threads)": kernel,
+        "estimator run() around the kernel": run - kernel,
+        "live filtering around run()": filters - run,
+        "body model (every person)": pose,
+        "rest of the batch (stats, hooks)": process - filters - pose,
+        "source polling + frame assembly": push - process,
+    }
+    lines = [f"  profile split of {push:.2f} s in push() ({frames} frames):"]
+    for name, seconds in parts.items():
+        lines.append(f"    {name:<36} {seconds / push * 100:5.1f} % "
+                     f"({seconds / frames * 1e3:.3f} ms per frame)")
     return "\n".join(lines)
 
 
@@ -189,28 +271,45 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=3.0, help="length of each real-time run")
     parser.add_argument("--methods", nargs="+", default=["bachmann", "default"])
-    parser.add_argument("--max-people", type=int, default=12800)
+    parser.add_argument("--start-people", type=int, default=100)
+    parser.add_argument("--max-people", type=int, default=16000)
+    parser.add_argument("--throughput-people", type=int, default=4000,
+                        help="people (x15 sensors) of the unpaced throughput run")
+    parser.add_argument("--profile", action="store_true",
+                        help="cProfile an unpaced run at the largest sustained S")
     args = parser.parse_args()
     base = base_signals()
     print(f"live engine scale at {RATE_HZ:.0f} Hz, 15 sensors per person, display 25 Hz, "
-          f"{args.seconds} s real-time runs")
+          f"{args.seconds} s real-time runs, {os.cpu_count()} CPUs, {load()}")
     summary = []
     for method in args.methods:
         name = methods.get(method).name
-        kernel_rate, run_rate = kernel_rates(method)
-        print(f"\n{name}: kernel {kernel_rate / 1e6:.2f} M samples/s "
+        kernel_rate, run_rate = filter_rates(method)
+        print(f"\n{name}: kernel run_many {kernel_rate / 1e6:.2f} M samples/s "
               f"({kernel_rate / RATE_HZ:.0f} sensors at 100 Hz), run() "
-              f"{run_rate / 1e6:.2f} M samples/s ({run_rate / kernel_rate:.2f} x kernel)")
-        best = search(method, base, args.seconds, args.max_people)
+              f"{run_rate / 1e6:.2f} M samples/s ({run_rate / kernel_rate:.2f} x kernel) "
+              f"[{load()}]")
+        tp = throughput(method, base, args.throughput_people)
+        print(f"  unpaced engine, {tp['sensors']} sensors: {tp['frames']} frames in "
+              f"{tp['wall_s']:.2f} s wall, {tp['cpu_s']:.2f} s CPU -> "
+              f"{tp['wall_sensors']:.0f} sensors at 100 Hz by wall time, "
+              f"{tp['cpu_sensors']:.0f} by CPU time on {os.cpu_count()} cores [{load()}]")
+        best = search(method, base, args.seconds, args.start_people, args.max_people)
         if best is None:
             print("  not even the smallest count was sustained")
             continue
         print(f"  largest sustained: {best['sensors']} sensors ({best['people']} avatars)")
-        print(breakdown(best, kernel_rate))
-        summary.append((name, best["sensors"], kernel_rate / RATE_HZ))
-    print("\nsummary (sensors sustained in real time at 100 Hz | kernel-only bound):")
-    for name, sensors, bound in summary:
-        print(f"  {name:<10} {sensors:>7} | {bound:>9.0f}")
+        print(breakdown(best))
+        if args.profile:
+            prof = throughput(method, base, best["people"], profile=True)
+            print(f"  cProfile of an unpaced run at {prof['sensors']} sensors (top by own time):")
+            print("\n".join("    " + line.strip()[:110]
+                            for line in prof["profile"].splitlines()[6:18] if line.strip()))
+            print(prof["split"])
+        summary.append((name, best["sensors"], tp["wall_sensors"], kernel_rate / RATE_HZ))
+    print("\nsummary (sensors at 100 Hz: sustained in real time | unpaced engine | kernel alone):")
+    for name, sensors, unpaced, bound in summary:
+        print(f"  {name:<10} {sensors:>7} | {unpaced:>9.0f} | {bound:>9.0f}")
 
 
 if __name__ == "__main__":

@@ -1,8 +1,10 @@
 """Forward kinematics of the body model: segment orientations and joint positions (000, eqs. 7, 11).
 
 Arrays are frames first, then segments in the skeleton's order: ``q`` (N, S, 4) or (S, 4),
-positions (N, S, 3) or (S, 3) in metres, earth frame ``skeleton.frame``. Everything is
-vectorised over frames; the only Python loop runs over the (at most 15) segments.
+positions (N, S, 3) or (S, 3) in metres, earth frame ``skeleton.frame`` (the leading N may
+as well be people of one frame: the live engine's avatars). Everything is vectorised over
+N and the segments (one rotation call for all segments); the only Python loop is the
+running sum down the (at most 15) segments of the tree, one addition each.
 """
 
 from __future__ import annotations
@@ -13,13 +15,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from margtrack import quaternion as quat
-from margtrack.body._checks import sensor_quaternions
+from margtrack.body._checks import UNIT_NORM_TOLERANCE, sensor_quaternions
 from margtrack.body.offsets import Calibration
 from margtrack.body.skeleton import Skeleton
 
 Array = NDArray[np.float64]
 
-__all__ = ["BodyPose", "positions", "resample_orientations", "segment_orientations", "track"]
+__all__ = ["BodyPose", "people_pose", "positions", "resample_orientations", "segment_orientations",
+           "track"]
 
 
 def _hemisphere(q: Array) -> Array:
@@ -85,14 +88,72 @@ def positions(
         raise ValueError(
             f"root_position_m must be finite with shape (3,) or {(*lead, 3)}, got {root.shape}"
         )
-    joints = np.empty((*lead, len(skeleton), 3))
+    n_seg = len(skeleton)
+    joints = np.empty((*lead, n_seg, 3))
     joints[..., 0, :] = root
-    offsets, ends_body = skeleton.offsets_m, skeleton.ends_m
-    for i in range(1, len(skeleton)):
-        p = skeleton.parents[i]
-        joints[..., i, :] = joints[..., p, :] + quat.rotate(q[..., p, :], offsets[i])  # eq. 11
-    ends = joints + quat.rotate(q, ends_body)
+    if n_seg > 1:
+        # every segment's offset rotated by its parent's orientation in one call (eq. 11)
+        parents = np.asarray(skeleton.parents[1:], dtype=np.intp)
+        steps = quat.rotate(q[..., parents, :], skeleton.offsets_m[1:])
+        for i in range(1, n_seg):  # parents come first: a running sum down the tree
+            joints[..., i, :] = joints[..., skeleton.parents[i], :] + steps[..., i - 1, :]
+    ends = joints + quat.rotate(q, skeleton.ends_m)
     return joints, ends
+
+
+def people_pose(
+    skeleton: Skeleton, q_sensor: ArrayLike, index: ArrayLike, q_offset: ArrayLike,
+    roots_m: ArrayLike,
+) -> tuple[Array, Array, Array]:
+    """One frame of A people wearing sensors on the K segments of ``skeleton`` (000, eqs. 7, 11).
+
+    ``q_segment[a, k] = q_sensor[index[a, k]] ⊗ q_offset[a, k]`` with ``w >= 0``, then
+    :func:`positions` of every person from its root: the same operations as
+    :func:`segment_orientations` (without the time continuity) and :func:`positions`, to
+    the last bit, in one compiled pass over people and segments
+    (:mod:`margtrack.kernels.body_pose`): the live engine's avatars.
+
+    Parameters
+    ----------
+    skeleton : the body model (K segments), in the frame of ``q_sensor``.
+    q_sensor : (S, 4) unit quaternions, sensor to earth.
+    index : (A, K) int, the sensor of each person's segment (skeleton order).
+    q_offset : (A, K, 4) each person's ``q_offset`` (:func:`margtrack.body.calibrate`).
+    roots_m : (A, 3) m, each person's root joint.
+
+    Returns
+    -------
+    q_segment (A, K, 4), joints_m (A, K, 3) m, ends_m (A, K, 3) m.
+    """
+    from margtrack.kernels.body_pose import people_pose as kernel
+
+    q = np.ascontiguousarray(q_sensor, dtype=np.float64)
+    idx = np.ascontiguousarray(index, dtype=np.intp)
+    off = np.ascontiguousarray(q_offset, dtype=np.float64)
+    roots = np.ascontiguousarray(roots_m, dtype=np.float64)
+    n_seg = len(skeleton)
+    if q.ndim != 2 or q.shape[1] != 4:
+        raise ValueError(f"q_sensor must have shape (S, 4), got {q.shape}")
+    if idx.ndim != 2 or idx.shape[1] != n_seg or off.shape != (*idx.shape, 4) \
+            or roots.shape != (idx.shape[0], 3):
+        raise ValueError(f"need index (A, {n_seg}), q_offset (A, {n_seg}, 4) and roots_m (A, 3) "
+                         f"for the {n_seg} segments; got {idx.shape}, {off.shape}, {roots.shape}")
+    if idx.size and (idx.min() < 0 or idx.max() >= q.shape[0]):
+        raise ValueError(f"index must name sensors 0..{q.shape[0] - 1}, got "
+                         f"{int(idx.min())}..{int(idx.max())}")
+    norm = np.sqrt(np.einsum("ij,ij->i", q, q))
+    bad = ~(np.abs(norm - 1.0) <= UNIT_NORM_TOLERANCE)  # non-finite too
+    if bad.any():
+        s = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"q_sensor[{s}] is not a unit quaternion (norm {float(norm[s])!r}); "
+                         "normalise it (margtrack.quaternion.normalize)")
+    q_segment = np.empty(off.shape)
+    joints = np.empty(roots.shape[:1] + (n_seg, 3))
+    ends = np.empty_like(joints)
+    kernel(q, idx, off, np.asarray(skeleton.parents, dtype=np.intp),
+           np.ascontiguousarray(skeleton.offsets_m), np.ascontiguousarray(skeleton.ends_m),
+           roots, q_segment, joints, ends)
+    return q_segment, joints, ends
 
 
 @dataclass(frozen=True, eq=False)

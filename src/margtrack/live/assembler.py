@@ -132,7 +132,7 @@ class FrameAssembler:
         self._none = np.zeros(n_sensors, dtype=bool)  # read-only by convention
         self._any_stale = False
         self._stale = np.zeros(n_sensors, dtype=bool)
-        self._restart_at: list[tuple[int, float]] = []
+        self._restart_at: list[tuple[NDArray[np.intp], float]] = []
         self.late = 0
         self.duplicates = 0
         self.late_by_sensor = np.zeros(n_sensors, dtype=np.int64)
@@ -158,9 +158,10 @@ class FrameAssembler:
         """Frames waiting for samples."""
         return len(self._pending)
 
-    def request_restart(self, sensor: int, t_s: float) -> None:
-        """Mark ``sensor``'s first emitted sample at or after ``t_s`` as a filter restart."""
-        self._restart_at.append((int(sensor), float(t_s)))
+    def request_restart(self, sensors: int | NDArray[np.intp], t_s: float) -> None:
+        """Mark the first emitted sample at or after ``t_s`` of ``sensors`` (one index or an
+        index array) as a filter restart."""
+        self._restart_at.append((np.atleast_1d(np.asarray(sensors, dtype=np.intp)), float(t_s)))
 
     def push(self, chunks: list[Chunk], now_s: float) -> list[Frames]:
         """Add chunks; return the frames that are ready, oldest first."""
@@ -209,12 +210,12 @@ class FrameAssembler:
             return None
         mask = np.zeros((self.n_sensors, t.size), dtype=bool)
         keep = []
-        for s, when in self._restart_at:
+        for sensors, when in self._restart_at:  # one entry per request (all sensors of a block)
             hits = np.flatnonzero(t >= when - self.tol_s)
             if hits.size:
-                mask[s, hits[0]] = True
+                mask[sensors, hits[0]] = True
             else:
-                keep.append((s, when))
+                keep.append((sensors, when))
         self._restart_at = keep
         return mask
 

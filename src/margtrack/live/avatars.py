@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from margtrack import body
 from margtrack import quaternion as quat
+from margtrack.body.kinematics import people_pose
 from margtrack.body.offsets import Heading
 from margtrack.body.skeleton import PRESETS, canonical_name
 
@@ -146,9 +147,7 @@ class Avatars:
         """Segment orientations (A, K, 4), joints (A, K, 3) m and ends (A, K, 3) m of one frame.
 
         ``q_sensor`` (S, 4) sensor to earth; ``offsets`` (A, K, 4) (:meth:`offsets`); segment
-        quaternions with ``w >= 0``.
+        quaternions with ``w >= 0``. One compiled pass over people and segments
+        (:func:`margtrack.body.kinematics.people_pose`, 000 eqs. 7, 11).
         """
-        q = np.asarray(q_sensor, dtype=np.float64)[self.index]  # (A, K, 4)
-        q_segment = quat.canonical(quat.multiply(q, offsets))  # 000 eq. 7
-        joints, ends = body.positions(self.skeleton, q_segment, self.root_positions_m)  # eq. 11
-        return q_segment, joints, ends
+        return people_pose(self.skeleton, q_sensor, self.index, offsets, self.root_positions_m)

@@ -101,6 +101,11 @@ class CalibratedSource:
         with self._lock:
             return self._calibrations.get(int(sensor))
 
+    def calibrations(self) -> dict[int, Calibration]:
+        """Every calibration applied now, by sensor index (a copy)."""
+        with self._lock:
+            return dict(self._calibrations)
+
     def poll(self, timeout_s: float) -> list[Chunk]:
         """The wrapped source's chunks, calibrated sensors corrected (copies)."""
         chunks = self.inner.poll(timeout_s)
@@ -232,6 +237,17 @@ class CalibrationPanel:
         self._thread = threading.Thread(target=self._loop, name="margtrack-calibration-panel",
                                         daemon=True)
         self._thread.start()
+
+    def cancel_run(self) -> None:
+        """Cancel a running procedure (its sensor's previous calibration is restored)."""
+        if self.run is not None and self.run.active:
+            self.run.cancel()
+
+    def rebind(self, engine: Engine, source: CalibratedSource) -> None:
+        """Serve ``engine`` reading ``source`` from now on (the page's *Replay again*; call
+        :meth:`cancel_run` before building ``source`` from the old one)."""
+        self.cancel_run()
+        self.engine, self.source = engine, source
 
     def toggle(self) -> None:
         """Start a procedure on the chosen sensor, or cancel the running one."""

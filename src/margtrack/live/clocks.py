@@ -23,7 +23,8 @@ Each sensor's clock is followed on its own (line sources, one sample per chunk):
   (:attr:`SensorClocks.restarts`): nothing after a reboot is discarded.
 
 Block sources (every sensor in one chunk, one clock) share one offset; a reset or jump of
-their clock re-synchronises every sensor at once.
+their clock re-synchronises every sensor at once. A block costs a few numpy operations over
+its sensors, no Python per sensor: the per-sensor state is held in (S,) arrays.
 """
 
 from __future__ import annotations
@@ -38,7 +39,17 @@ from margtrack.live.protocol import Chunk
 
 Array = NDArray[np.float64]
 
-__all__ = ["SensorClocks"]
+__all__ = ["SensorClocks", "rows_of"]
+
+
+def rows_of(sensors: NDArray[np.intp], n_sensors: int) -> slice | NDArray[np.intp]:
+    """An index for the (S,) arrays of a chunk's ``sensors``: ``slice(None)`` when the chunk
+    holds every sensor in order (the block sources' case: a slice costs no gather)."""
+    if sensors.shape[0] == n_sensors and (
+            n_sensors == 0 or (sensors[0] == 0 and sensors[-1] == n_sensors - 1
+                               and np.array_equal(sensors, np.arange(n_sensors)))):
+        return slice(None)
+    return sensors
 
 
 class SensorClocks:
@@ -50,6 +61,9 @@ class SensorClocks:
     rate_hz : nominal sample rate, Hz, or None (then each sensor's period is learned from
         its own steps).
     jump_s : the largest forward step of a clock that is not a jump, s.
+
+    Per-sensor state is (S,) arrays (``offset_s``, ``last_session_s`` ...); ``restarts`` is
+    a list of ``(sensors, session time)`` with ``sensors`` an index array.
     """
 
     def __init__(self, n_sensors: int, rate_hz: float | None, jump_s: float = 1.0) -> None:
@@ -59,24 +73,23 @@ class SensorClocks:
         self.jump_s = float(jump_s)
         nominal = 1.0 / rate_hz if rate_hz else math.nan
         self.nominal_period_s = nominal
-        # per-sensor state as Python lists: one line costs scalar operations only
-        self.period_s = [nominal] * n_sensors
+        self.period_s = np.full(n_sensors, nominal)
         self.origin_s = math.nan  # device time of the session's first sample
-        self.offset_s = [math.nan] * n_sensors
-        self.last_device_s = [math.nan] * n_sensors
-        self.last_session_s = [math.nan] * n_sensors
-        self.last_arrival_s = [math.nan] * n_sensors
-        self.last_seq = [-1] * n_sensors
+        self.offset_s = np.full(n_sensors, np.nan)
+        self.last_device_s = np.full(n_sensors, np.nan)
+        self.last_session_s = np.full(n_sensors, np.nan)
+        self.last_arrival_s = np.full(n_sensors, np.nan)
+        self.last_seq = np.full(n_sensors, -1, dtype=np.int64)
         #: arrival (perf_counter) of each sensor's latest chunk of any kind (suspects too)
         self.heard_s = np.full(n_sensors, -np.inf)
         self._suspect: list[Chunk | None] = [None] * n_sensors
-        self._received = [0] * n_sensors
+        self._received = np.zeros(n_sensors, dtype=np.int64)
         self.lost = np.zeros(n_sensors, dtype=np.int64)
         self.gaps = np.zeros(n_sensors, dtype=np.int64)
         self.resyncs = np.zeros(n_sensors, dtype=np.int64)
         self.bad_time = np.zeros(n_sensors, dtype=np.int64)
-        #: (sensor, session time) of samples at which a sensor's filter must restart
-        self.restarts: list[tuple[int, float]] = []
+        #: (sensors, session time) of samples at which sensors' filters must restart
+        self.restarts: list[tuple[NDArray[np.intp], float]] = []
         self._block_last_s = math.nan
 
     def map(self, chunks: list[Chunk]) -> list[Chunk]:
@@ -94,7 +107,7 @@ class SensorClocks:
     @property
     def received(self) -> NDArray[np.int64]:
         """(S,) samples received per sensor (held-back and discarded ones included)."""
-        return np.array(self._received, dtype=np.int64)
+        return self._received.copy()
 
     def pending_suspects(self) -> int:
         """Samples held back as suspect (their sensor's next sample decides)."""
@@ -102,34 +115,32 @@ class SensorClocks:
 
     # -- block sources --------------------------------------------------------------------
     def _block(self, chunk: Chunk) -> Chunk | None:
-        if chunk.n_frames == 0:
+        n = chunk.n_frames
+        if n == 0:
             return None
         t = chunk.t_s
         sensors = chunk.sensors
-        rows = [int(s) for s in sensors]
-        for s in rows:
-            self._received[s] += chunk.n_frames
+        rows = rows_of(sensors, self.n_sensors)
+        self._received[rows] += n
         if math.isnan(self.origin_s):
             self.origin_s = float(t[0])
-            self.offset_s = [self.origin_s] * self.n_sensors
-        offset = float(self.offset_s[rows[0]])
+            self.offset_s[:] = self.origin_s
+        offset = float(self.offset_s[sensors[0]])
         first = float(t[0]) - offset
         last = self._block_last_s
         if math.isfinite(last) and not (last < first <= last + self.jump_s):
             step = float(np.median(np.diff(t))) if t.size > 1 else self.nominal_period_s
             step = step if math.isfinite(step) and step > 0 else 0.01
             offset = float(t[0]) - (last + step)
-            for s in rows:
-                self.offset_s[s] = offset
-            self.resyncs[sensors] += 1
-            self.gaps[sensors] += 1
-            self.restarts.extend((s, last + step) for s in rows)
+            self.offset_s[rows] = offset
+            self.resyncs[rows] += 1
+            self.gaps[rows] += 1
+            self.restarts.append((np.array(sensors, dtype=np.intp), last + step))
         session = t - offset
         self._block_last_s = float(session[-1])
-        for s in rows:
-            self.last_session_s[s] = float(session[-1])
-            self.last_device_s[s] = float(t[-1])
-            self.last_arrival_s[s] = float(chunk.arrival_s[-1])
+        self.last_session_s[rows] = float(session[-1])
+        self.last_device_s[rows] = float(t[-1])
+        self.last_arrival_s[rows] = float(chunk.arrival_s[-1])
         return dataclasses.replace(chunk, t_s=session)
 
     # -- line sources ----------------------------------------------------------------------
@@ -142,7 +153,7 @@ class SensorClocks:
             self.heard_s[s] = arrival
         if chunk.seq is not None:
             seq = int(chunk.seq[0])
-            last_seq = self.last_seq[s]
+            last_seq = int(self.last_seq[s])
             if last_seq >= 0 and seq > last_seq + 1:
                 self.lost[s] += seq - last_seq - 1
                 self.gaps[s] += 1
@@ -151,9 +162,9 @@ class SensorClocks:
             self.origin_s = d
         if math.isnan(self.offset_s[s]):
             return self._first(s, d, chunk)
-        step = d - self.last_device_s[s]
+        step = d - float(self.last_device_s[s])
         suspect = self._suspect[s]
-        waited = arrival - self.last_arrival_s[s]
+        waited = arrival - float(self.last_arrival_s[s])
         if 0.0 < step <= self.jump_s or (
                 step > 0.0 and abs(step - waited) <= 0.1 + 0.1 * waited):  # a silence
             if suspect is not None:  # the old clock goes on: the suspect was a bad stamp
@@ -174,23 +185,24 @@ class SensorClocks:
         self._resync(s, d, step2, arrival)
         self.resyncs[s] += 1
         self.gaps[s] += 1
-        self.restarts.append((s, d_suspect - float(self.offset_s[s])))
+        self.restarts.append((np.array([s], dtype=np.intp),
+                              d_suspect - float(self.offset_s[s])))
         return [self._emit(s, d_suspect, suspect), self._emit(s, d, chunk)]
 
     def _first(self, s: int, d: float, chunk: Chunk) -> list[Chunk]:
         session = d - self.origin_s
-        peers = [v for v in self.last_session_s if math.isfinite(v)]
-        if peers:
-            frontier = max(peers)
-            if abs(session - frontier) > self.jump_s:  # a clock of its own: align by arrival
-                self._resync(s, d, math.nan, float(chunk.arrival_s[0]))
-                self.resyncs[s] += 1
-                return [self._emit(s, d, chunk)]
+        frontier = float(np.max(self.last_session_s, initial=-np.inf,
+                                where=np.isfinite(self.last_session_s)))
+        if math.isfinite(frontier) and abs(session - frontier) > self.jump_s:
+            # a clock of its own: align by arrival
+            self._resync(s, d, math.nan, float(chunk.arrival_s[0]))
+            self.resyncs[s] += 1
+            return [self._emit(s, d, chunk)]
         self.offset_s[s] = self.origin_s
         return [self._emit(s, d, chunk)]
 
     def _count_time_loss(self, s: int, step: float, no_seq: bool) -> None:
-        period = self.period_s[s]
+        period = float(self.period_s[s])
         if math.isnan(self.nominal_period_s):
             # no nominal rate: learn the period from the smallest steps seen
             period = step if math.isnan(period) else min(period, step)
@@ -206,24 +218,25 @@ class SensorClocks:
         period = float(self.period_s[s])
         if not (period > 0):
             period = step2 if step2 > 0 else 0.01
-        others = [p for p in range(self.n_sensors)
-                  if p != s and math.isfinite(self.last_arrival_s[p])]
-        if others:
-            p = max(others, key=lambda i: self.last_arrival_s[i])
-            ref_session, ref_arrival = self.last_session_s[p], self.last_arrival_s[p]
+        arrivals = np.where(np.isfinite(self.last_arrival_s), self.last_arrival_s, -np.inf)
+        arrivals[s] = -np.inf
+        p = int(np.argmax(arrivals))  # the other sensor heard last (the first of equals)
+        if math.isfinite(arrivals[p]):
+            ref_session, ref_arrival = float(self.last_session_s[p]), float(arrivals[p])
         else:
-            ref_session, ref_arrival = self.last_session_s[s], self.last_arrival_s[s]
+            ref_session = float(self.last_session_s[s])
+            ref_arrival = float(self.last_arrival_s[s])
         if not math.isfinite(ref_session):
             ref_session, ref_arrival = 0.0, arrival
         session = ref_session + round(max(arrival - ref_arrival, 0.0) / period) * period
-        own = self.last_session_s[s]
+        own = float(self.last_session_s[s])
         if math.isfinite(own):
             floor = own + period + (step2 if step2 > 0 else 0.0)
             session = max(session, floor)
         self.offset_s[s] = d - session
 
     def _emit(self, s: int, d: float, chunk: Chunk) -> Chunk:
-        session = d - self.offset_s[s]
+        session = d - float(self.offset_s[s])
         self.last_device_s[s] = d
         self.last_session_s[s] = session
         self.last_arrival_s[s] = float(chunk.arrival_s[0])

@@ -1,22 +1,24 @@
 """The real-time engine: filters for every sensor, the body model, poses at the display rate.
 
-Threading model: one worker thread per engine (:meth:`Engine.start`) polls the source,
-assembles frames (:class:`~margtrack.live.assembler.FrameAssembler`) and processes them;
-nothing else runs the filters. Whatever arrived while a batch was processed is processed as
-the next batch of N frames in *one* call of the estimator's multi-sensor ``run`` on
-(S, N, 3) arrays, so a slow moment costs latency, not samples. Other threads (the viewer,
-tests) talk to the engine through thread-safe methods: :meth:`set_params`,
-:meth:`request_calibration`, :meth:`start_recording`/:meth:`stop_recording`,
-:meth:`subscribe`, :meth:`stats`. :meth:`stop` (or leaving the ``with`` block) ends and
-joins the worker and closes the source. Without :meth:`start`, :meth:`process` runs the same
-work synchronously (tests, offline use). No module-level state: engines are independent.
+Threading: one worker thread per engine (:meth:`Engine.start`, :mod:`~margtrack.live.worker`)
+polls the source, assembles frames (:class:`~margtrack.live.assembler.FrameAssembler`) and
+processes them; nothing else runs the filters. What arrived while a batch was processed is
+the next batch of N frames, run in *one* call of the estimator's multi-sensor ``run`` on
+(S, N, 3) arrays, so a slow moment costs latency, not samples. Other threads talk to the
+engine through thread-safe methods (:meth:`set_params`, :meth:`request_calibration`,
+:meth:`start_recording`/:meth:`stop_recording`, :meth:`subscribe`, :meth:`stats`);
+:meth:`stop` (or leaving the ``with`` block) joins the worker and closes the source.
+Without :meth:`start`, :meth:`process` runs the same work synchronously. No module-level
+state: engines are independent.
 
-Per batch: pending parameter changes are applied (they take effect at the batch's first
-sample, the next sample after the call), the filters run, frames are recorded and fed to
-a pending calibration, and if the batch's last frame crosses a tick of the display clock
-(data time, ``display_hz``) its pose is computed (000, eqs. 7, 11) and published to every
-subscriber: callbacks run on the worker thread (keep them short), queues drop their oldest
-pose when full.
+Per batch: pending parameter changes are applied (in force from the batch's first sample),
+the filters run, frames are recorded (:mod:`~margtrack.live.orientation_log`) and fed to a
+pending calibration (:mod:`~margtrack.live.calibrations`), and if the batch's last frame
+crosses a tick of the display clock (data time, ``display_hz``) the pose of every person
+is computed at once (000, eqs. 7, 11) and published (:mod:`~margtrack.live.subscribers`:
+callbacks on the worker thread, queues dropping their oldest pose when full). No Python
+runs per sensor: the bookkeeping (clocks, frames, counts, health) is numpy over the S
+sensors, the body model one compiled pass over people and segments.
 
 Field faults stay with their sensor: each sensor's clock is mapped to session time (0 at
 the first frame) on its own, resets and jumps re-synchronise it, losses are counted from
@@ -30,14 +32,12 @@ summary (:meth:`Engine.summary`, written to ``summary_path`` when the worker end
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
 import queue
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -48,41 +48,20 @@ from margtrack.body.offsets import Heading
 from margtrack.estimators.base import Estimator, Params
 from margtrack.live.assembler import FrameAssembler, Frames, concatenate
 from margtrack.live.avatars import Avatars
+from margtrack.live.calibrations import Calibrations
 from margtrack.live.clocks import SensorClocks
 from margtrack.live.filtering import SensorFilters
+from margtrack.live.orientation_log import OrientationLog
+from margtrack.live.pose import Pose
 from margtrack.live.protocol import Chunk, Source, SourceInfo
 from margtrack.live.recording import LiveRecording
-from margtrack.live.reference_pose import CalibrationRequest
-from margtrack.live.stats import EngineStats, StatsMeter, summary_dict, write_summary
+from margtrack.live.stats import EngineStats, StatsMeter, sensor_counts, summary_dict, write_summary
+from margtrack.live.subscribers import Subscribers
+from margtrack.live.worker import Worker
 
 Array = NDArray[np.float64]
 
 __all__ = ["Engine", "Pose"]
-
-
-@dataclass(frozen=True, eq=False)
-class Pose:
-    """One published pose.
-
-    index : frame number since the engine started (0-based); t_s : its sample time, s.
-    q_sensor : (S, 4) sensor to earth. q_segment (A, K, 4), joints_m / ends_m (A, K, 3) m:
-    the body models' segments and joints, or None without a body model.
-    arrival_s / published_s : perf_counter times of the frame's arrival and of publishing.
-    """
-
-    index: int
-    t_s: float
-    q_sensor: Array
-    q_segment: Array | None
-    joints_m: Array | None
-    ends_m: Array | None
-    arrival_s: float
-    published_s: float
-
-    @property
-    def latency_s(self) -> float:
-        """End-to-end latency of this pose, s."""
-        return self.published_s - self.arrival_s
 
 
 class Engine:
@@ -133,6 +112,9 @@ class Engine:
             raise ValueError(f"display_hz must be a finite number > 0, got {display_hz}")
         self.info = info
         self.method = methods.get(method).name
+        if getattr(methods.get(method), "offline", False):
+            raise ValueError(f"method {self.method!r} is offline (it needs the whole recording); "
+                             "live streams need a causal method such as 'robust'")
         self._estimator: Estimator = methods.create(method, params, rate_hz=info.rate_hz)
         if not info.has_mag and not type(self._estimator).mag_optional:
             raise ValueError(f"method {self.method!r} needs a magnetometer; the source has none")
@@ -148,8 +130,7 @@ class Engine:
         self.heading: Heading = heading
         self.forward_axis = forward_axis
         self.late_after_s = float(late_after_s)
-        self._calibrations = avatars.identity() if avatars is not None else []
-        self._offsets = Avatars.offsets(self._calibrations) if avatars is not None else None
+        self._body = Calibrations(avatars, heading, forward_axis)
         if stale_after_s is None:
             stale_after_s = 5.0 / info.rate_hz if info.rate_hz else 0.1
         self.stale_after_s = float(stale_after_s)
@@ -163,19 +144,13 @@ class Engine:
         self._meter = StatsMeter(info.sensor_names)
         self._lock = threading.Lock()
         self._pending: Params | None = None
-        self._subscribers: list[Callable[[Pose], None]] = []
-        self._recording: list[tuple[Array, Array]] | None = None
-        self._request: CalibrationRequest | None = None
-        #: (first, last) time of the frames of the last successful calibration, s
-        self.calibration_window_s: tuple[float, float] | None = None
-        self._calibration_status = "not calibrated (identity offsets)"
+        self._subscribers = Subscribers()
+        self._log = OrientationLog(info.sensor_names, avatars)
         self._last_tick = -math.inf
         self._frame_index = -1
         self._latest: Pose | None = None
         self._source: Source | None = None
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self._done = threading.Event()
+        self._worker = Worker(self.push, self._finish)
         self._error = ""
         #: hooks called with every batch of frames before / after it is processed (on the
         #: worker thread): raw recording (:class:`~margtrack.live.recording.RawRecorder`) and
@@ -222,85 +197,48 @@ class Engine:
         """Calibrate on the next ``duration_s`` of data in which no sensor turns more than
         ``max_motion_deg`` (000, eq. 10); gives up after ``timeout_s`` of data time
         (:class:`~margtrack.live.reference_pose.CalibrationRequest`)."""
-        if self.avatars is None:
-            raise ValueError("no body model: the sensor names name no skeleton segments")
-        request = CalibrationRequest(duration_s, max_motion_deg, timeout_s)
-        with self._lock:
-            self._request = request
-            self._calibration_status = "waiting for a still second in the reference pose"
+        self._body.request(duration_s, max_motion_deg, timeout_s)
 
     @property
     def calibration_status(self) -> str:
         """What the last calibration request did."""
-        with self._lock:
-            return self._calibration_status
+        return self._body.status
+
+    @property
+    def calibration_window_s(self) -> tuple[float, float] | None:
+        """(first, last) time of the frames of the last successful calibration, s."""
+        return self._body.window_s
 
     @property
     def calibrations(self) -> list[Any]:
         """Per person, the :class:`margtrack.body.Calibration` in force."""
-        with self._lock:
-            return list(self._calibrations)
+        return self._body.in_force
 
     def set_calibrations(self, calibrations: Sequence[Any]) -> None:
         """Put per-person body calibrations in force (a replayed or saved calibration)."""
-        if self.avatars is None or len(calibrations) != self.avatars.n_people:
-            raise ValueError(f"need one calibration per person of the body model, got "
-                             f"{len(calibrations)}")
-        with self._lock:
-            self._calibrations = list(calibrations)
-            self._offsets = Avatars.offsets(self._calibrations)
+        self._body.set(calibrations)
 
     def start_recording(self) -> None:
         """Record every processed frame from now on (replaces an unfinished recording)."""
-        with self._lock:
-            self._recording = []
+        self._log.start()
 
     @property
     def recording(self) -> bool:
         """Whether a recording is running."""
-        with self._lock:
-            return self._recording is not None
+        return self._log.active
 
     def stop_recording(self) -> LiveRecording:
         """Stop recording and return what was recorded (``ValueError`` if none was started)."""
-        with self._lock:
-            parts, self._recording = self._recording, None
-            calibrations = tuple(self._calibrations)
-        if parts is None:
-            raise ValueError("no recording is running; call start_recording() first")
-        t = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0)
-        empty = np.zeros((0, self.info.n_sensors, 4))
-        q = np.concatenate([p[1] for p in parts]) if parts else empty
-        return LiveRecording(t, q, self.info.sensor_names, self.frame, self.avatars, calibrations)
+        return self._log.stop(self.frame, self._body.in_force)
 
     # -- subscribers -----------------------------------------------------------------------
     def subscribe(self, callback: Callable[[Pose], None]) -> Callable[[], None]:
         """Call ``callback(pose)`` for every published pose; returns an unsubscribe function."""
-        with self._lock:
-            self._subscribers.append(callback)
-
-        def unsubscribe() -> None:
-            with self._lock:
-                if callback in self._subscribers:
-                    self._subscribers.remove(callback)
-
-        return unsubscribe
+        return self._subscribers.subscribe(callback)
 
     def subscribe_queue(self, maxsize: int = 64) -> queue.Queue[Pose]:
         """A queue receiving every published pose; when full, its oldest pose is dropped."""
-        q: queue.Queue[Pose] = queue.Queue(maxsize=maxsize)
-
-        def put(pose: Pose) -> None:
-            while True:
-                try:
-                    q.put_nowait(pose)
-                    return
-                except queue.Full:
-                    with contextlib.suppress(queue.Empty):  # emptied meanwhile
-                        q.get_nowait()
-
-        self.subscribe(put)
-        return q
+        return self._subscribers.subscribe_queue(maxsize)
 
     @property
     def data_time_s(self) -> float:
@@ -336,8 +274,8 @@ class Engine:
         now = t0 if now_s is None else now_s
         mapped = self._clocks.map(list(chunks))
         if self._clocks.restarts:
-            for sensor, t_s in self._clocks.restarts:
-                self._assembler.request_restart(sensor, t_s)
+            for sensors, t_s in self._clocks.restarts:
+                self._assembler.request_restart(sensors, t_s)
             self._clocks.restarts.clear()
         frames = self._assembler.push(mapped, now)
         if flush:
@@ -353,27 +291,27 @@ class Engine:
         with self._lock:
             if self._pending is not None:
                 self._estimator.params, self._pending = self._pending, None
-            recording, request = self._recording, self._request
+        record, request = self._log.appender(), self._body.pending
         q, _flags = self._filters.run(frames)  # (S, N, 4): per-sensor faults isolated
         t1 = time.perf_counter()
-        n = frames.n_frames
-        self._frame_index += n
-        if recording is not None or request is not None:
+        self._frame_index += frames.n_frames
+        if record is not None or request is not None:
             q_frames = np.swapaxes(q, 0, 1)  # (N, S, 4)
-            if recording is not None:
-                recording.append((frames.t_s.copy(), q_frames.copy()))
+            if record is not None:
+                record(frames.t_s, q_frames)
             if request is not None:
-                self._calibrate(request, frames.t_s, q_frames)
+                self._body.feed(request, frames.t_s, q_frames)
         tick = math.floor(frames.t_s[-1] * self.display_hz + 1e-6)
         pose = None
         if tick > self._last_tick:
             self._last_tick = tick
-            pose = self._pose(frames, q[:, -1])
+            pose = Pose.of(self._frame_index, frames.t_s[-1], frames.arrival_s[-1], q[:, -1],
+                           self.avatars, self._body.offsets)
         t2 = time.perf_counter()
         if pose is not None:
             self._publish(pose)
         t3 = time.perf_counter()
-        late = int(np.sum(t3 - frames.arrival_s > self.late_after_s))
+        late = int(np.count_nonzero(t3 - frames.arrival_s > self.late_after_s))
         meter = self._meter
         meter.time_filter_s += t1 - t0
         meter.time_body_s += t2 - t1
@@ -383,63 +321,24 @@ class Engine:
             hook(frames)
         return pose
 
-    def _pose(self, frames: Frames, q_last: Array) -> Pose:
-        q_segment = joints = ends = None
-        if self.avatars is not None:
-            with self._lock:
-                offsets = self._offsets
-            q_segment, joints, ends = self.avatars.pose(q_last, offsets)
-        return Pose(self._frame_index, float(frames.t_s[-1]), q_last.copy(), q_segment, joints,
-                    ends, float(frames.arrival_s[-1]), math.nan)
-
     def _publish(self, pose: Pose) -> None:
-        pose = dataclasses.replace(pose, published_s=time.perf_counter())
-        self._latest = pose
-        self._meter.published(pose.latency_s)
-        with self._lock:
-            subscribers = list(self._subscribers)
-        for callback in subscribers:
-            try:
-                callback(pose)
-            except Exception as exc:  # a broken subscriber must not stop tracking
-                self._meter.subscriber_errors += 1
-                self._error = f"subscriber {callback!r} raised {exc!r}"
-
-    def _calibrate(self, request: CalibrationRequest, t: Array, q: Array) -> None:
-        if self.avatars is None:
-            return
-        outcome = request.feed(self.avatars, t, q, self.heading, self.forward_axis)
-        if outcome is None:
-            return
-        with self._lock:
-            if self._request is request:
-                self._request = None
-            if outcome.calibrations is not None:
-                self._calibrations = outcome.calibrations
-                self._offsets = Avatars.offsets(outcome.calibrations)
-                self.calibration_window_s = outcome.window_s
-            self._calibration_status = outcome.status
+        self._latest, failed, error = self._subscribers.publish(pose)
+        self._meter.published(self._latest.latency_s)
+        if failed:
+            self._meter.subscriber_errors += failed
+            self._error = error
 
     # -- statistics ------------------------------------------------------------------------
     def stats(self) -> EngineStats:
         """A snapshot of timing, latency, losses and sensor health."""
-        a = self._assembler
+        a, c, f = self._assembler, self._clocks, self._filters
         malformed = self._source.stats.malformed if self._source is not None else 0
         dropped = a.dropped.copy()
-        c, f = self._clocks, self._filters
-        counts = {
-            "received": c.received.copy(), "processed": f.processed.copy(),
-            "lost": c.lost.copy(), "gaps": c.gaps + a.resumed, "resyncs": c.resyncs.copy(),
-            "flagged": f.flagged.copy(), "reinitialised": f.reinitialised.copy(),
-            "held": dropped - a.discarded_by_sensor, "late": a.late_by_sensor.copy(),
-            "duplicates": a.duplicates_by_sensor.copy(), "bad_time": c.bad_time.copy(),
-            "discarded": a.discarded_by_sensor.copy(),
-        }
         stale = a.stale
         stats = self._meter.snapshot(self.info.n_sensors, dropped, a.late, malformed,
-                                     self.calibration_status, self._error, counts=counts,
-                                     stale=stale, stale_s=a.stale_s.copy(),
-                                     errors=tuple(f.errors))
+                                     self.calibration_status, self._error,
+                                     counts=sensor_counts(c, a, f), stale=stale,
+                                     stale_s=a.stale_s.copy(), errors=tuple(f.errors))
         return dataclasses.replace(stats, session_s=self.session_time_s,
                                    engine_error=self._fatal,
                                    lost_samples=int(c.lost.sum()),
@@ -454,10 +353,10 @@ class Engine:
         """Write :meth:`summary` to ``path`` as JSON, atomically (replaces an older file)."""
         write_summary(self.summary(), path, force=True)
 
-    # -- the worker thread -------------------------------------------------------------------
+    # -- the worker thread (margtrack.live.worker) -----------------------------------------
     def start(self, source: Source, poll_timeout_s: float = 0.02) -> Engine:
         """Run the engine on ``source`` in a worker thread (opened here, closed at the end)."""
-        if self._thread is not None:
+        if self._worker.started:
             raise ValueError("this engine was already started; build a new one")
         if tuple(source.info.sensor_names) != self.info.sensor_names:
             raise ValueError("the source's sensors differ from the ones the engine was built for")
@@ -465,58 +364,32 @@ class Engine:
         attach = getattr(source, "attach_engine", None)  # a replay that re-applies events
         if attach is not None:
             attach(self)
-        self._thread = threading.Thread(target=self._run, args=(source, poll_timeout_s),
-                                        name="margtrack-live-engine", daemon=True)
-        self._thread.start()
+        self._worker.start(source, poll_timeout_s)
         return self
 
-    def _run(self, source: Source, poll_timeout_s: float) -> None:
-        try:
-            source.open()
-            while not self._stop.is_set():
-                chunks = source.poll(poll_timeout_s)
-                end = source.finished and not chunks
-                self.push(chunks, flush=end)
-                if end:
-                    break
-            else:  # stopped: what the source already holds (up to 0.25 s of work) and the
-                # frames still waiting for samples are processed, so they are counted
-                deadline = time.perf_counter() + 0.25
-                while time.perf_counter() < deadline:
-                    chunks = source.poll(0.0)
-                    if not chunks:
-                        break
-                    self.push(chunks)
-                self.push([], flush=True)
-        except Exception as exc:  # reported by stats().error, .error and the summary
-            self._fatal = f"engine stopped: {exc!r}"
-            self._error = self._fatal
-        finally:
-            with contextlib.suppress(Exception):
-                source.close()
-            if self.summary_path is not None:
-                try:
-                    self.write_summary(self.summary_path)
-                except Exception as exc:  # the session's result stays in stats()
-                    self._error = f"could not write the summary {self.summary_path}: {exc!r}"
-            self._done.set()
+    def _finish(self, fatal: str | None) -> None:
+        """The worker's last act: note why it stopped on its own, write the summary."""
+        if fatal is not None:
+            self._fatal = fatal
+            self._error = fatal
+        if self.summary_path is not None:
+            try:
+                self.write_summary(self.summary_path)
+            except Exception as exc:  # the session's result stays in stats()
+                self._error = f"could not write the summary {self.summary_path}: {exc!r}"
 
     @property
     def running(self) -> bool:
         """Whether the worker thread is alive."""
-        return self._thread is not None and self._thread.is_alive()
+        return self._worker.running
 
     def wait(self, timeout_s: float | None = None) -> bool:
         """Wait until the source is exhausted (or the engine stopped); True if it ended."""
-        return self._done.wait(timeout_s)
+        return self._worker.wait(timeout_s)
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """Stop the worker, close the source and join the thread (idempotent)."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout_s)
-            if self._thread.is_alive():
-                raise RuntimeError(f"the engine's worker did not stop within {timeout_s} s")
+        self._worker.stop(timeout_s)
 
     def __enter__(self) -> Engine:
         return self

@@ -16,7 +16,9 @@ live stream needs on top, per sensor:
   The reason is kept per sensor in ``errors``.
 
 Counted per sensor: ``processed`` (samples run, not held), ``flagged`` (processed samples
-with a data flag of the input policy), ``reinitialised``.
+with a data flag of the input policy), ``reinitialised``. Counts and holds are numpy over
+the (S, N) batch (:func:`hold_where` fills held samples forward); Python runs per sensor
+only for a sensor that failed.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from margtrack.live.isolation import reinitialise, restart, run_each
 
 Array = NDArray[np.float64]
 
-__all__ = ["SensorFilters"]
+__all__ = ["SensorFilters", "hold_where"]
 
 
 class SensorFilters:
@@ -64,10 +66,14 @@ class SensorFilters:
             flag_parts.append(flags)
         q = q_parts[0] if len(q_parts) == 1 else np.concatenate(q_parts, axis=1)
         flags = flag_parts[0] if len(flag_parts) == 1 else np.concatenate(flag_parts, axis=1)
-        used = ~frames.held
-        self.processed += used.sum(axis=1)
-        data = (flags & np.uint16(DATA_FLAGS)) != 0
-        self.flagged += np.count_nonzero(data & used, axis=1)
+        held = frames.held if frames.held.any() else None
+        self.processed += n if held is None else n - held.sum(axis=1)
+        data = (flags & np.uint16(DATA_FLAGS)) != 0  # (S, N); usually all False
+        if held is not None:
+            data &= ~held
+        rows = np.flatnonzero(data.ravel()) // n  # the sensor of each flagged sample
+        if rows.size:
+            np.add.at(self.flagged, rows, 1)
         return q, flags
 
     def _segment(self, frames: Frames, a: int, b: int) -> tuple[Array, NDArray[np.uint16]]:
@@ -82,12 +88,14 @@ class SensorFilters:
         except Exception:  # one sensor's fault: find it, the others go on
             q, flags = run_each(self.estimator, t, gyr, acc, mag, self.q_last,
                                 lambda s, e: self._failed(s, f"filter raised {e!r}"))
-        bad = ~np.isfinite(q).all(axis=(1, 2))
-        if bad.any():
+        # quaternions are bounded, so one sum is finite exactly when every entry is
+        if not np.isfinite(np.add.reduce(q, axis=None)):
+            bad = np.flatnonzero(~np.isfinite(q).all(axis=(1, 2)))
             q = q.copy()
-            for s in np.flatnonzero(bad):
-                s = int(s)
-                self._hold_non_finite(q[s], self.q_last[s])
+            q_before = self.q_last[bad]
+            q_before[~np.isfinite(q_before).all(axis=1)] = (1.0, 0.0, 0.0, 0.0)
+            q[bad] = hold_where(q[bad], ~np.isfinite(q[bad]).all(axis=2), q_before)
+            for s in bad.tolist():
                 flags[s] |= np.uint16(Flag.INITIALISING)
                 reinitialise(self.estimator, s, q[s, -1])
                 self._failed(s, "non-finite orientation")
@@ -96,12 +104,7 @@ class SensorFilters:
             rows = np.flatnonzero(stale.any(axis=1))
             if rows.size:
                 q = q.copy()
-                for s in rows:
-                    held = self.q_last[s]
-                    for k in range(b - a):
-                        if stale[s, k]:
-                            q[s, k] = held
-                        held = q[s, k]
+                q[rows] = hold_where(q[rows], stale[rows], self.q_last[rows])
         self.q_last = q[:, -1].copy()
         return q, flags
 
@@ -109,12 +112,12 @@ class SensorFilters:
         self.reinitialised[sensor] += 1
         self.errors[sensor] = why
 
-    @staticmethod
-    def _hold_non_finite(q: Array, q_before: Array) -> None:
-        """Replace non-finite rows of ``q`` (N, 4) by the last finite one (in place)."""
-        held = q_before if np.all(np.isfinite(q_before)) else np.array([1.0, 0.0, 0.0, 0.0])
-        for k in range(q.shape[0]):
-            if np.all(np.isfinite(q[k])):
-                held = q[k]
-            else:
-                q[k] = held
+
+def hold_where(q: Array, hold: NDArray[np.bool_], q_before: Array) -> Array:
+    """``q`` (R, N, 4) with each sample where ``hold`` (R, N) replaced by the row's latest
+    sample not held before it, or by ``q_before`` (R, 4) if there is none (a forward fill)."""
+    n = q.shape[1]
+    k = np.where(hold, -1, np.arange(n))
+    np.maximum.accumulate(k, axis=1, out=k)  # index of the latest kept sample, -1: none
+    filled = np.concatenate([q_before[:, None], q], axis=1)  # index 0: before the batch
+    return np.take_along_axis(filled, (k + 1)[:, :, None], axis=1)

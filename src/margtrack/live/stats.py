@@ -36,13 +36,15 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 Array = NDArray[np.float64]
 
-__all__ = ["EngineStats", "SensorHealth", "StatsMeter", "summary_dict", "write_summary"]
+__all__ = ["EngineStats", "SensorHealth", "StatsMeter", "sensor_counts", "summary_dict",
+           "write_summary"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -140,10 +142,13 @@ class StatsMeter:
         self.time_assemble_s = 0.0
         self._per_frame: deque[float] = deque(maxlen=keep)
         self._latency: deque[float] = deque(maxlen=keep)
-        self._received: deque[tuple[float, NDArray[np.int64]]] = deque()
+        # per batch: (last frame time, frames N, (S,) held samples or None when none was):
+        # O(1) per batch while nothing is held, whatever S
+        self._received: deque[tuple[float, int, NDArray[np.int64] | None]] = deque()
         self._mag_first: list[Array] = []
         self._mag_first_until = np.inf
         self._mag_ref = np.full(n, np.nan)
+        self._mag_ref_missing = True  # some sensor has no reference norm yet
         self._mag_now = np.full(n, np.nan)
 
     def batch(self, t_s: Array, held: NDArray[np.bool_], mag: Array | None,
@@ -154,19 +159,23 @@ class StatsMeter:
         self.batches += 1
         self.late_frames += late
         self._per_frame.append(seconds / n)
-        self._received.append((float(t_s[-1]), (~held).sum(axis=1)))
+        held_rows = held.sum(axis=1) if held.any() else None
+        self._received.append((float(t_s[-1]), n, held_rows))
         while self._received and self._received[0][0] < t_s[-1] - self.window_s:
             self._received.popleft()
         if mag is not None:
-            norms = np.linalg.norm(mag, axis=2)  # (S, N)
-            self._mag_now = norms[:, -1]
-            if np.isnan(self._mag_ref).any():
+            if self._mag_ref_missing:
+                norms = np.linalg.norm(mag, axis=2)  # (S, N)
+                self._mag_now = norms[:, -1]
                 if not self._mag_first:
                     self._mag_first_until = float(t_s[0]) + 1.0
                 self._mag_first.append(norms)
                 if t_s[-1] >= self._mag_first_until:
                     self._mag_ref = np.median(np.concatenate(self._mag_first, axis=1), axis=1)
+                    self._mag_ref_missing = bool(np.isnan(self._mag_ref).any())
                     self._mag_first = []
+            else:  # only the latest sample's norm is needed once the reference is known
+                self._mag_now = np.linalg.norm(mag[:, -1], axis=1)
 
     def published(self, latency_s: float) -> None:
         """Record one published pose."""
@@ -179,7 +188,11 @@ class StatsMeter:
         rate = np.zeros(n)
         if len(self._received) >= 2:
             span = self._received[-1][0] - self._received[0][0]
-            counts = sum(c for _, c in list(self._received)[1:])
+            later = list(self._received)[1:]
+            counts = np.full(n, sum(frames for _, frames, _ in later), dtype=np.int64)
+            for _, _, held_rows in later:
+                if held_rows is not None:
+                    counts -= held_rows
             rate = counts / span if span > 0 else rate
         ratio = self._mag_now / self._mag_ref
         ok = np.abs(ratio - 1.0) <= self.mag_norm_tol  # NaN (no reference yet) -> False
@@ -215,6 +228,21 @@ class StatsMeter:
             calibration=calibration,
             error=error,
         )
+
+
+def sensor_counts(clocks: Any, assembler: Any, filters: Any) -> dict[str, NDArray[np.int64]]:
+    """The per-sensor counts of :class:`SensorHealth` (copies) from the engine's
+    :class:`~margtrack.live.clocks.SensorClocks`, :class:`~margtrack.live.assembler.
+    FrameAssembler` and :class:`~margtrack.live.filtering.SensorFilters`."""
+    c, a, f = clocks, assembler, filters
+    return {
+        "received": c.received.copy(), "processed": f.processed.copy(),
+        "lost": c.lost.copy(), "gaps": c.gaps + a.resumed, "resyncs": c.resyncs.copy(),
+        "flagged": f.flagged.copy(), "reinitialised": f.reinitialised.copy(),
+        "held": a.dropped - a.discarded_by_sensor, "late": a.late_by_sensor.copy(),
+        "duplicates": a.duplicates_by_sensor.copy(), "bad_time": c.bad_time.copy(),
+        "discarded": a.discarded_by_sensor.copy(),
+    }
 
 
 def _number(x: float) -> float | None:

@@ -7,7 +7,8 @@ What the page shows (000's display, in a browser, issue 17 part 11 and issue 18 
   framed on them at start; without a body model one frame per sensor;
 - *Status*: poses shown, session time (from 0 at the first frame), latency, processing
   time, drops, calibration, the engine's error; when a replay ends, a notice, a *Loop
-  replay* option and a *Replay again* button;
+  replay* option and a *Replay again* button (:mod:`margtrack.live.viewer_replay`: the
+  sensor calibrations and the raw recording carry over to the new engine);
 - *Joint angles*: the first person's joint angles now, and a scrolling plot of the joints
   ticked under it (first component, deg, over the last 10 s);
 - *Calibration and recording*: "Calibrate in reference pose" with a countdown;
@@ -51,7 +52,15 @@ from margtrack.live.engine import Engine, Pose
 from margtrack.live.protocol import Source
 from margtrack.live.security import AccessPolicy, exposure_warning, guarded_viser_server, page_url
 from margtrack.live.viewer_controls import JointPlot, ParamControls
-from margtrack.live.viewer_panels import JointTrace, export_recording, sensor_order, sensor_table
+from margtrack.live.viewer_panels import (
+    JointTrace,
+    end_notice,
+    export_recording,
+    sensor_order,
+    sensor_table,
+    status_text,
+)
+from margtrack.live.viewer_replay import replay_again, replay_of
 from margtrack.live.viewer_scene import AvatarScene
 
 Array = NDArray[np.float64]
@@ -61,24 +70,13 @@ __all__ = ["LiveSession", "LiveViewer", "run_live"]
 _PANEL_PERIOD_S = 0.25
 
 
-def _rewound(source: Source) -> Source | None:
-    """A fresh copy of a replay (same data, speed, loop flag) to play again, else None."""
-    from margtrack.live.replay import ReplaySource
-
-    if type(source) is not ReplaySource:
-        return None
-    return ReplaySource(source.t_s, source.gyr, source.acc, source.mag,
-                        source.info.sensor_names, speed=source.speed,
-                        chunk_frames=source.chunk_frames, loop=source.loop,
-                        description=source.info.description)
-
-
 class LiveViewer:
     """Scene and GUI of one engine on one viser server (module docstring).
 
     source : the engine's source, for the replay options (loop, replay again), or None.
-    new_engine : builds an engine like ``engine`` (not started); with a replay ``source``,
-        *Replay again* runs one on a rewound copy of the replay, with the parameters in force.
+    new_engine : builds an engine like ``engine`` (not started); with a replay ``source``
+        (plain or in a calibration wrapper), *Replay again* runs one on a rewound copy of
+        the replay, with the parameters in force (:func:`~.viewer_replay.replay_again`).
     """
 
     def __init__(self, engine: Engine, server: Any, out_dir: str | Path | None = None,
@@ -91,7 +89,7 @@ class LiveViewer:
         self.countdown_s = float(countdown_s)
         self.poses_shown = 0
         self.exported: list[Path] = []
-        self._new_engine = new_engine if source is not None and _rewound(source) else None
+        self.new_engine = new_engine if replay_of(source) is not None else None
         self._lock = threading.Lock()
         self._pose: Pose | None = None
         self._new = threading.Event()
@@ -128,10 +126,10 @@ class LiveViewer:
             self._notice = gui.add_markdown("", visible=False)
             if self.source is not None and hasattr(self.source, "loop"):
                 self._loop_box = gui.add_checkbox(
-                    "Loop replay", initial_value=bool(self.source.loop),
+                    "Loop replay", initial_value=bool(getattr(self.source, "loop", False)),
                     hint="Start the replay again after its last frame (timestamps continue).")
                 self._loop_box.on_update(lambda _: self._set_loop(self._loop_box.value))
-            if self._new_engine is not None:
+            if self.new_engine is not None:
                 self._again = gui.add_button("Replay again", visible=False)
                 self._again.on_click(lambda _: self._replay_again())
         self._joint_plot: JointPlot | None = None
@@ -143,7 +141,7 @@ class LiveViewer:
                                              disabled=self.engine.avatars is None)
             self._calibrate.on_click(lambda _: self._start_countdown())
             self._record = gui.add_button("Start recording", disabled=self.engine.avatars is None)
-            self._record.on_click(lambda _: self._toggle_recording())
+            self._record.on_click(lambda _: self.toggle_recording())
             self._exports = gui.add_markdown(f"exports go to `{self.out_dir.resolve()}`")
         with gui.add_folder(f"Filter: {self.engine.method}"):
             self._axes_box = gui.add_checkbox("show segment axes", initial_value=False)
@@ -152,29 +150,33 @@ class LiveViewer:
         with gui.add_folder("Sensors"):
             self._sensors = gui.add_markdown("")
 
+    @property
+    def message(self) -> str:
+        """The last message shown in the status panel."""
+        return self._message
+
     def _set_loop(self, value: bool) -> None:
-        if self.source is not None:
-            self.source.loop = bool(value)  # type: ignore[attr-defined]
+        target = replay_of(self.source) or self.source
+        if target is not None:
+            target.loop = bool(value)  # type: ignore[attr-defined]
             self._message = "the replay loops" if value else "the replay stops at its end"
 
     def _replay_again(self) -> None:
-        """A new engine, with the parameters in force, on a rewound copy of the replay."""
-        fresh = _rewound(self.source) if self.source is not None else None
-        if self._new_engine is None or fresh is None or self.engine.running:
-            return
-        old, new = self.engine, self._new_engine()
-        new.set_params(**{f.name: getattr(old.params, f.name)
-                          for f in dataclasses.fields(old.params) if f.name != "frame"})
+        """The *Replay again* button (:func:`~.viewer_replay.replay_again`)."""
+        message = replay_again(self)
+        if message is not None:
+            self._again.visible = False
+            self._notice.visible = False
+            self._message = message
+
+    def switch_engine(self, engine: Engine, source: Source) -> None:
+        """Show ``engine`` (reading ``source``) instead of the stopped one."""
         self._unsubscribe()
-        old.stop()
+        self.engine.stop()
         self._t0 = None
         self._trace.clear()
-        self.engine, self.source = new, fresh
-        self._unsubscribe = new.subscribe(self._on_pose)
-        new.start(fresh)
-        self._again.visible = False
-        self._notice.visible = False
-        self._message = f"replaying again (the previous run had {old.stats().frames} frames)"
+        self.engine, self.source = engine, source
+        self._unsubscribe = engine.subscribe(self._on_pose)
 
     def _say(self, message: str) -> None:
         self._message = message
@@ -193,7 +195,8 @@ class LiveViewer:
 
         threading.Thread(target=countdown, name="margtrack-live-countdown", daemon=True).start()
 
-    def _toggle_recording(self) -> None:
+    def toggle_recording(self) -> None:
+        """The page's "Start recording" / "Stop recording and export" button."""
         if not self.engine.recording:
             self.engine.start_recording()
             calibration_panel.page_recording(self, True)  # the raw stream too
@@ -224,32 +227,18 @@ class LiveViewer:
     def _panels(self) -> None:
         engine = self.engine
         st = engine.stats()
-        t = f"{self._session_s:.2f} s" if math.isfinite(self._session_s) else "-"
-        self._status.content = (
-            f"poses shown: {self.poses_shown}  \n"
-            f"session time {t} · {st.frames} frames  \n"
-            f"latency p50 {st.latency_p50_s * 1e3:.1f} ms · p95 {st.latency_p95_s * 1e3:.1f} ms"
-            f"  \nprocessing {st.processing_s_per_sample * 1e6:.2f} µs/sample · "
-            f"dropped {st.dropped_samples} · late frames {st.late_frames}  \n"
-            f"calibration: {st.calibration}  \n{self._message}"
-            + (f"  \n**{st.error}**" if st.error else "")
-        )
+        self._status.content = status_text(st, self.poses_shown, self._session_s,
+                                           self._message)
         # the engine's own failure (B1's engine_error), else an error text naming a stop
         fatal = getattr(st, "engine_error", None) or (
             st.error if st.error.startswith("engine stopped") else None)
         ended = engine.wait(0)  # the source is exhausted or the engine stopped
         if ended and not self._notice.visible:
-            if fatal:
-                self._notice.content = (f"**{fatal}**: the page shows its last pose; restart "
-                                        "`margtrack live`.")
-            else:
-                what = "Replay" if hasattr(self.source, "loop") else "The source"
-                self._notice.content = (
-                    f"**{what} ended** at session time {t} ({st.frames} frames)."
-                    + (" Press *Replay again*, ticking *Loop replay* to play it in a loop."
-                       if self._new_engine is not None else ""))
+            self._notice.content = end_notice(st, self._session_s, fatal,
+                                              replay=hasattr(self.source, "loop"),
+                                              again=self.new_engine is not None)
             self._notice.visible = True
-            if self._new_engine is not None and not fatal:
+            if self.new_engine is not None and not fatal:
                 self._again.visible = True
         self._sensors.content = sensor_table(st.health, self._order)
         if self._joint_plot is not None and self._angles is not None:
@@ -388,6 +377,7 @@ def run_live(
     try:
         viewer = LiveViewer(engine, server, out_dir, source=source, new_engine=new_engine)
         source = calibration_panel.attach(viewer, source, record)  # guided calibration panel
+        viewer.source, viewer.record_path = source, record  # for Replay again
         engine.start(source)
     except BaseException:
         server.stop()

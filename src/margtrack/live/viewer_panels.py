@@ -25,10 +25,12 @@ Array = NDArray[np.float64]
 
 __all__ = [
     "JointTrace",
+    "end_notice",
     "export_recording",
     "joint_table",
     "sensor_order",
     "sensor_table",
+    "status_text",
     "unique_stem",
 ]
 
@@ -160,3 +162,35 @@ def export_recording(recording: Any, folder: str | Path, stem: str | None = None
     with atomic_output(paths[2]) as tmp:
         body.write_sto(tmp, recording.avatars.skeleton, recording.t_s, q_segment)
     return paths
+
+
+def _session_text(session_s: float) -> str:
+    return f"{session_s:.2f} s" if math.isfinite(session_s) else "-"
+
+
+def status_text(stats: Any, poses_shown: int, session_s: float, message: str) -> str:
+    """The *Status* panel: poses shown, session time (s), latency, drops, calibration, the
+    last message and the engine's error (``stats``: :meth:`Engine.stats`)."""
+    st = stats
+    return (
+        f"poses shown: {poses_shown}  \n"
+        f"session time {_session_text(session_s)} · {st.frames} frames  \n"
+        f"latency p50 {st.latency_p50_s * 1e3:.1f} ms · p95 {st.latency_p95_s * 1e3:.1f} ms"
+        f"  \nprocessing {st.processing_s_per_sample * 1e6:.2f} µs/sample · "
+        f"dropped {st.dropped_samples} · late frames {st.late_frames}  \n"
+        f"calibration: {st.calibration}  \n{message}"
+        + (f"  \n**{st.error}**" if st.error else "")
+    )
+
+
+def end_notice(stats: Any, session_s: float, fatal: str | None, replay: bool,
+               again: bool) -> str:
+    """The notice shown when the engine has ended: its fatal error, or the end of the
+    source (a replay's, with the *Replay again* hint when ``again``)."""
+    if fatal:
+        return f"**{fatal}**: the page shows its last pose; restart `margtrack live`."
+    what = "Replay" if replay else "The source"
+    return (f"**{what} ended** at session time {_session_text(session_s)} "
+            f"({stats.frames} frames)."
+            + (" Press *Replay again*, ticking *Loop replay* to play it in a loop."
+               if again else ""))
