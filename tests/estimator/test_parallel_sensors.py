@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from margtrack import methods, sim
+from margtrack.estimator import compiled
 from margtrack.estimator.compiled import CompiledEstimator
 
 COMPILED = [m for m in methods.available() if issubclass(methods.get(m), CompiledEstimator)]
@@ -25,11 +26,23 @@ def _sensors(n_sensors: int = 5, duration_s: float = 3.0):
     return recs[0].t, gyr, acc, mag
 
 
+#: the threaded path (``run_many``) is one template for every method
+#: (``contract.run_series_parallel``); two methods keep its slow compilation out of the rest
+THREADED = ["gyro", "robust"]
+
+
 @pytest.mark.kernel
-@pytest.mark.parametrize("name", COMPILED)
-def test_threads_over_sensors_equal_each_sensor_alone(name):
+@pytest.mark.parametrize(
+    ("name", "threaded"), [(m, False) for m in COMPILED] + [(m, True) for m in THREADED]
+)
+def test_threads_over_sensors_equal_each_sensor_alone(name, threaded, monkeypatch):
+    if threaded:
+        monkeypatch.setattr(compiled, "PARALLEL_MIN_SAMPLES", 0)
     t, gyr, acc, mag = _sensors()
     together = methods.create(name).run(gyr=gyr, acc=acc, mag=mag, t=t)
+    run_many = methods.get(name).kernel.run_many
+    if threaded and hasattr(run_many, "signatures"):  # numba: the threaded entry compiled
+        assert run_many.signatures
     assert together.quat.shape == (5, t.size, 4)
     for s in range(gyr.shape[0]):
         alone = methods.create(name).run(gyr=gyr[s], acc=acc[s], mag=mag[s], t=t)

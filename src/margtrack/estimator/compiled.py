@@ -89,6 +89,11 @@ class CompiledState:
 
 P = TypeVar("P", bound=Params)
 
+#: several sensors are shared among threads (``kernel.run_many``) from this many samples
+#: in all: below it the threads' start and the parallel kernel's one-time compilation
+#: (tens of seconds per method) cost more than they save
+PARALLEL_MIN_SAMPLES = 100_000
+
 
 class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
     """Base of the methods with a compiled per-sample path (module docstring).
@@ -274,7 +279,8 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         flags = np.empty((n_sensors, n), dtype=np.uint16)
         has = (x.mag is not None) | (self._has_gyr_bit if x.gyr is not None else 0)
         # several sensors: shared among threads (compiled on first use of many sensors)
-        run = self.kernel.run_many if n_sensors > 1 else self.kernel.run
+        parallel = n_sensors > 1 and n_sensors * n >= PARALLEL_MIN_SAMPLES
+        run = self.kernel.run_many if parallel else self.kernel.run
         run(
             work.rows, work.clock, self._coefs, _read_only(np.ascontiguousarray(x.t)),
             _read_only(x.acc if x.gyr is None else x.gyr), _read_only(x.acc),
