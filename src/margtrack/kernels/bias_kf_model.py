@@ -305,6 +305,21 @@ def _predict_covariance(p, g, gp):
             p[c, r] = gp[r, c]
 
 
+@njit(cache=True, inline="always")
+def _joseph(p, zmat, zh, kv, gain, n, m):
+    """``P = Z - Z Hᵀ Kᵀ + K V Kᵀ`` (003 eq. 51, Joseph form) from Z = (I - K H) P, Z Hᵀ
+    (n, m) and K V (n, m), written to the upper triangle and mirrored: exactly symmetric."""
+    for r in range(n):
+        for c in range(r, n):
+            acc = zmat[r, c]
+            for k in range(m):
+                acc += (kv[r, k] - zh[r, k]) * gain[c, k]
+            p[r, c] = acc
+    for r in range(n):
+        for c in range(r):
+            p[r, c] = p[c, r]
+
+
 @njit(cache=True)
 def _kalman_update(p, v, innov, chol, y, gain, zmat, kv, dx):
     """Update with ``H = [I_m 0]`` (eqs. 49-51): fills ``dx = K ν``, ``P`` in Joseph form.
@@ -336,15 +351,7 @@ def _kalman_update(p, v, innov, chol, y, gain, zmat, kv, dx):
             for k in range(m):
                 acc += gain[r, k] * v[k, c]
             kv[r, c] = acc
-    for r in range(n):  # P = Z - Z Hᵀ Kᵀ + K V Kᵀ (eq. 51, Joseph form)
-        for c in range(r, n):
-            acc = zmat[r, c]
-            for k in range(m):
-                acc += (kv[r, k] - zmat[r, k]) * gain[c, k]
-            p[r, c] = acc
-    for r in range(n):
-        for c in range(r):
-            p[r, c] = p[c, r]
+    _joseph(p, zmat, zmat, kv, gain, n, m)  # with H = [I_m 0], Z Hᵀ is Z's first m columns
     return True
 
 
@@ -395,15 +402,7 @@ def _reduced_update(p, hq, m, v, innov, chol, y, gain, hp, zmat, zh, kv, dx):
             for k in range(4):
                 acc += zmat[r, k] * hq[c, k]
             zh[r, c] = acc
-    for r in range(n):  # P = Z - Z Hᵀ Kᵀ + K V Kᵀ (eq. 51, Joseph form)
-        for c in range(r, n):
-            acc = zmat[r, c]
-            for k in range(m):
-                acc += (kv[r, k] - zh[r, k]) * gain[c, k]
-            p[r, c] = acc
-    for r in range(n):
-        for c in range(r):
-            p[r, c] = p[c, r]
+    _joseph(p, zmat, zh, kv, gain, n, m)
     return True
 
 
