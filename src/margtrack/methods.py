@@ -1,30 +1,19 @@
 """The registry of estimation methods, by the names the CLI and the benchmarks use.
 
-A later method joins by adding its class to ``_CLASSES``; nothing else changes.
+A later method joins by adding its name, module and class to ``_WHERE``; nothing else changes.
 ``"default"`` names the recommended method (the best one measured on BROAD so far).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import types
 import typing
 from collections.abc import Iterable, Mapping
 from typing import Any
 
 from margtrack.estimators.base import Estimator, Params
-from margtrack.estimators.davenport import Davenport
-from margtrack.estimators.fqa import Fqa
-from margtrack.estimators.gauss_newton import GaussNewton, Newton
-from margtrack.estimators.quest import Quest
-from margtrack.estimators.triad import Triad
-from margtrack.filters.bias_kf import BiasKalman
-from margtrack.filters.complementary import Bachmann, BachmannAccMag
-from margtrack.filters.ekf import MarinsEkf
-from margtrack.filters.gradient import Gradient
-from margtrack.filters.gyro import GyroIntegration
-from margtrack.filters.robust import Robust
-from margtrack.filters.robust_offline import RobustOffline
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -35,23 +24,25 @@ __all__ = [
     "parse_params_items",
 ]
 
-_CLASSES: tuple[type[Estimator], ...] = (
-    Bachmann,
-    BachmannAccMag,
-    BiasKalman,
-    Davenport,
-    Fqa,
-    GaussNewton,
-    Gradient,
-    GyroIntegration,
-    MarinsEkf,
-    Newton,
-    Quest,
-    Robust,
-    RobustOffline,
-    Triad,
-)
-_BY_NAME: Mapping[str, type[Estimator]] = types.MappingProxyType({c.name: c for c in _CLASSES})
+#: name -> (module, class): a method's module is imported only when the method is used, so a
+#: command running one method does not load the others (``tests/test_methods.py`` checks that
+#: each name equals its class's ``name``)
+_WHERE: Mapping[str, tuple[str, str]] = types.MappingProxyType({
+    "bachmann": ("margtrack.filters.complementary", "Bachmann"),
+    "bachmann-accmag": ("margtrack.filters.complementary", "BachmannAccMag"),
+    "bias-kf": ("margtrack.filters.bias_kf", "BiasKalman"),
+    "davenport": ("margtrack.estimators.davenport", "Davenport"),
+    "fqa": ("margtrack.estimators.fqa", "Fqa"),
+    "gauss-newton": ("margtrack.estimators.gauss_newton", "GaussNewton"),
+    "gradient": ("margtrack.filters.gradient", "Gradient"),
+    "gyro": ("margtrack.filters.gyro", "GyroIntegration"),
+    "ekf": ("margtrack.filters.ekf", "MarinsEkf"),
+    "newton": ("margtrack.estimators.gauss_newton", "Newton"),
+    "quest": ("margtrack.estimators.quest", "Quest"),
+    "robust": ("margtrack.filters.robust", "Robust"),
+    "robust-offline": ("margtrack.filters.robust_offline", "RobustOffline"),
+    "triad": ("margtrack.estimators.triad", "Triad"),
+})
 
 #: The recommended method; ``"default"`` resolves to it: the best measured on BROAD so far.
 #: Mean total RMSE over the 16 trials with default parameters: robust 2.03 deg (VQF 2.76
@@ -61,18 +52,19 @@ DEFAULT_METHOD = "robust"
 
 def available() -> list[str]:
     """Registered method names (``"default"`` not included)."""
-    return sorted(_BY_NAME)
+    return sorted(_WHERE)
 
 
 def get(name: str) -> type[Estimator]:
     """The estimator class registered under ``name`` (``"default"`` is the recommended one)."""
     key = DEFAULT_METHOD if name == "default" else name
     try:
-        return _BY_NAME[key]
+        module, attr = _WHERE[key]
     except KeyError:
         raise ValueError(
             f"unknown method {name!r}; available: {', '.join(['default', *available()])}"
         ) from None
+    return getattr(importlib.import_module(module), attr)
 
 
 def _coerce(value: Any, annotation: Any, name: str) -> Any:

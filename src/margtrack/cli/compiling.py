@@ -8,9 +8,12 @@ hit, so listening to it is an exact cold-cache test with nothing to guess.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
+
+from margtrack.kernels import jit
 
 if TYPE_CHECKING:  # pragma: no cover
     from rich.console import Console
@@ -82,21 +85,28 @@ def compile_notice(console: Console) -> Iterator[CompileNotice]:
     compilation ends; elsewhere (a pipe, a log, a test runner) one line is printed the
     first time. Nothing at all is shown when every kernel comes from numba's cache.
     """
-    from numba.core import event  # numba is imported by the commands that need this anyway
-
-    class _Listener(event.Listener):  # numba accepts only its own Listener subclasses
-        def on_start(self, ev: Any) -> None:
-            notice.on_start(ev)
-
-        def on_end(self, ev: Any) -> None:
-            notice.on_end(ev)
-
     notice = CompileNotice(console)
-    with event.install_listener("numba:compile", _Listener()):
-        try:
-            yield notice
-        finally:
-            notice.stop()
+    listening = contextlib.ExitStack()
+
+    def listen() -> None:  # numba is imported only when a kernel first runs through it
+        from numba.core import event
+
+        class _Listener(event.Listener):  # numba accepts only its own Listener subclasses
+            def on_start(self, ev: Any) -> None:
+                notice.on_start(ev)
+
+            def on_end(self, ev: Any) -> None:
+                notice.on_end(ev)
+
+        listening.enter_context(event.install_listener("numba:compile", _Listener()))
+
+    remove = jit.on_numba_load(listen)
+    try:
+        yield notice
+    finally:
+        remove()
+        listening.close()
+        notice.stop()
 
 
 def with_compile_notice(func: Callable[..., Any], console: Console) -> Callable[..., Any]:
@@ -110,3 +120,44 @@ def with_compile_notice(func: Callable[..., Any], console: Console) -> Callable[
 
     wrapper.compile_notice = True  # type: ignore[attr-defined]  # marks a wrapped command
     return wrapper
+
+
+#: shown while an ahead-of-time build compiles (``margtrack.kernels.aot``)
+AOT_MESSAGE = "compiling kernels for a quick start next time (first run only)"
+
+
+@contextmanager
+def quick_start_build(console: Console) -> Iterator[None]:
+    """After the block, build the kernels it ran through numba ahead of time.
+
+    The next process running the same command then loads them in milliseconds instead of
+    importing numba (``margtrack.kernels.aot``). Nothing happens when every kernel came from
+    a build already, or with ``MARGTRACK_AOT=0``. A failed build (no C compiler, say) is
+    reported once in a line and remembered, and changes nothing else.
+    """
+    from margtrack.kernels import aot
+
+    if not aot.enabled():
+        yield
+        return
+    with aot.recording() as recorded:
+        yield
+    if not recorded or not aot.worth_building(recorded):
+        return
+    status = console.status(AOT_MESSAGE) if console.is_terminal else None
+    if status is None:
+        console.print(AOT_MESSAGE)
+    else:
+        status.start()
+    try:
+        aot.build(recorded)
+    except Exception as exc:
+        aot.remember_failure(exc)
+        console.print(
+            f"[yellow]note:[/] the quick-start build failed ({type(exc).__name__}: {exc}); "
+            "margtrack works as before and only starts slower. MARGTRACK_AOT=0 stops trying.",
+            soft_wrap=True,
+        )
+    finally:
+        if status is not None:
+            status.stop()

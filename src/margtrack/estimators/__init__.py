@@ -1,11 +1,30 @@
-"""Single-frame estimators (accelerometer + magnetometer only) and the estimator contract."""
+"""Single-frame estimators (accelerometer + magnetometer only) and the estimator contract.
+
+Each estimator's module loads on first use (``margtrack.estimators.Fqa`` imports
+``margtrack.estimators.fqa`` only), so a command running one method loads no other.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
 
 from margtrack.estimators.base import Estimate, Estimator, Params, State, initial_orientation
-from margtrack.estimators.davenport import Davenport, DavenportParams
-from margtrack.estimators.fqa import Fqa, FqaParams
-from margtrack.estimators.gauss_newton import GaussNewton, GaussNewtonParams, Newton, NewtonParams
-from margtrack.estimators.quest import Quest, QuestParams
-from margtrack.estimators.triad import Triad, TriadParams
+
+_WHERE = {
+    "Davenport": "davenport",
+    "DavenportParams": "davenport",
+    "Fqa": "fqa",
+    "FqaParams": "fqa",
+    "GaussNewton": "gauss_newton",
+    "GaussNewtonParams": "gauss_newton",
+    "Newton": "gauss_newton",
+    "NewtonParams": "gauss_newton",
+    "Quest": "quest",
+    "QuestParams": "quest",
+    "Triad": "triad",
+    "TriadParams": "triad",
+}
 
 __all__ = [
     "Davenport",
@@ -26,3 +45,13 @@ __all__ = [
     "TriadParams",
     "initial_orientation",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _WHERE:
+        return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(__all__) | set(globals()))

@@ -9,30 +9,54 @@ writes.
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import h5py
-
-from margtrack.io.broad import BroadTrial, broad_trials, read_broad
-from margtrack.io.csv import is_margtrack_csv, read_csv, write_csv, write_estimate_csv
-from margtrack.io.dataframe import from_dataframe
-from margtrack.io.estimate_reader import EstimateFile, is_estimate_file, read_estimate
-from margtrack.io.hdf5 import _naming_path, read_hdf5, write_estimate_hdf5, write_hdf5
-from margtrack.io.live_hdf5 import (
-    LIVE_FORMAT,
-    is_live_recording,
-    read_live_recording,
-    write_live_recording,
-)
-from margtrack.io.mapped import flag_invalid
-from margtrack.io.phone import read_sensor_files
-from margtrack.io.profile import load_profile, merge_profile
-from margtrack.io.xio import read_xio_body, read_xio_quaternion, read_xio_sensor
 from margtrack.recording import Recording
 from margtrack.units import unit_factor
+
+#: re-exported name -> its module: loaded on first use, so reading one format loads no other
+_WHERE = {
+    "BroadTrial": "broad",
+    "broad_trials": "broad",
+    "read_broad": "broad",
+    "is_margtrack_csv": "csv",
+    "read_csv": "csv",
+    "write_csv": "csv",
+    "write_estimate_csv": "csv",
+    "from_dataframe": "dataframe",
+    "EstimateFile": "estimate_reader",
+    "is_estimate_file": "estimate_reader",
+    "read_estimate": "estimate_reader",
+    "read_hdf5": "hdf5",
+    "write_estimate_hdf5": "hdf5",
+    "write_hdf5": "hdf5",
+    "LIVE_FORMAT": "live_hdf5",
+    "is_live_recording": "live_hdf5",
+    "read_live_recording": "live_hdf5",
+    "write_live_recording": "live_hdf5",
+    "flag_invalid": "mapped",
+    "read_sensor_files": "phone",
+    "load_profile": "profile",
+    "merge_profile": "profile",
+    "read_xio_body": "xio",
+    "read_xio_quaternion": "xio",
+    "read_xio_sensor": "xio",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _WHERE:
+        return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(__all__) | set(globals()))
+
 
 __all__ = [
     "BroadTrial",
@@ -128,6 +152,8 @@ def read(
     ``check_units=True`` to keep them).
     """
     if profile is not None:
+        from margtrack.io.profile import merge_profile
+
         settings = merge_profile(profile, {
             "gyr_unit": gyr_unit, "acc_unit": acc_unit, "mag_unit": mag_unit,
             "time_unit": time_unit, "columns": columns, "delimiter": delimiter,
@@ -144,6 +170,8 @@ def read(
     if not isinstance(path, str | Path):
         if columns is not None:
             raise ValueError("columns= maps one table; per-sensor files are mapped by name")
+        from margtrack.io.phone import read_sensor_files
+
         return read_sensor_files(path, **given, **layout, **kw)
     p = Path(path)
     if not p.exists():
@@ -155,13 +183,15 @@ def read(
         )
     if p.is_dir():
         if (p / "Inertial.csv").is_file():
+            from margtrack.io.xio import read_xio_sensor
+
             return read_xio_sensor(p, **{"check_units": False, **kw, **given})
         if any((d / "Inertial.csv").is_file() for d in p.iterdir()):
             raise ValueError(
                 f"{p} holds several x-IMU3 sensor folders; read them all with "
                 "read_xio_body(path) or one with read(path / <sensor>)"
             )
-        from margtrack.io.phone import sensor_files
+        from margtrack.io.phone import read_sensor_files, sensor_files
 
         if "gyr" in sensor_files(p):
             return read_sensor_files(p, **given, **layout, **kw)
@@ -171,6 +201,12 @@ def read(
         )
     suffix = p.suffix.lower()
     if suffix in HDF5_SUFFIXES:
+        import h5py
+
+        from margtrack.io.broad import read_broad
+        from margtrack.io.hdf5 import read_hdf5
+        from margtrack.io.live_hdf5 import LIVE_FORMAT
+
         try:
             with h5py.File(p, "r") as f:
                 is_broad = "imu_gyr" in f
@@ -183,6 +219,8 @@ def read(
         rec = read_broad(p, **kw) if is_broad else read_hdf5(p, **kw)
         return _declared(rec, p, declared)
     if suffix in TABLE_SUFFIXES:
+        from margtrack.io.csv import is_margtrack_csv, read_csv
+
         if columns is not None:
             return read_csv(p, columns, **{"check_units": False, **kw, **given, **layout})
         if is_margtrack_csv(p):
@@ -198,6 +236,7 @@ def _read_other_table(
     p: Path, given: dict[str, str], layout: dict[str, str | None], kw: dict[str, Any]
 ) -> Recording:
     """A table that is not margtrack's: a phone logger's, or an error giving the mapping."""
+    from margtrack.io.csv import read_csv
     from margtrack.io.csv_layout import mapping_hint, sniff
     from margtrack.io.phone import phone_columns
 
@@ -226,6 +265,8 @@ def _read_other_table(
 
 def _declared(rec: Recording, path: Path, declared: dict[str, str | None]) -> Recording:
     """``rec`` (read from an SI format) converted from the declared units, path in errors."""
+    from margtrack.io.hdf5 import _naming_path
+
     with _naming_path(path):
         return rec.with_units(**{k.removesuffix("_unit"): v for k, v in declared.items()})
 
@@ -241,8 +282,12 @@ def write(rec: Recording, path: str | Path) -> None:
     p = Path(path)
     suffix = p.suffix.lower()
     if suffix in HDF5_SUFFIXES:
+        from margtrack.io.hdf5 import write_hdf5
+
         write_hdf5(rec, p)
     elif suffix in CSV_SUFFIXES:
+        from margtrack.io.csv import write_csv
+
         write_csv(rec, p)
     else:
         raise ValueError(
@@ -281,6 +326,8 @@ def read_any(
             return [read(d, **units) for d in sorted(
                 d for d in p.iterdir() if (d / "Inertial.csv").is_file()
             )]
+    from margtrack.io.live_hdf5 import is_live_recording, read_live_recording
+
     if p.is_file() and p.suffix.lower() in HDF5_SUFFIXES and is_live_recording(p):
         recs = read_live_recording(p).recordings.values()  # one per sensor, source order
         return [_declared(r, p, units) for r in recs]

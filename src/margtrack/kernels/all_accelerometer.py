@@ -13,9 +13,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from margtrack.kernels.bias_kf import bias_kf
+from margtrack.kernels.jit import njit
 
 
 @njit(cache=True)

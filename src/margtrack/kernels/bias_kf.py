@@ -54,7 +54,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 from numpy.lib.stride_tricks import as_strided
 
 from margtrack.kernels import contract
@@ -79,6 +78,7 @@ from margtrack.kernels.bias_kf_model import (
     fill_quat_noise,
     fill_triad_cov,
 )
+from margtrack.kernels.jit import njit
 from margtrack.kernels.triad import OK, PARALLEL, ZERO_ACC, ZERO_MAG
 
 #: flag: the innovation covariance was not positive definite, the update was skipped

@@ -28,10 +28,9 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
 from margtrack.kernels._linalg import add_kalman_gain, add_kalman_gain_n, cholesky
 from margtrack.kernels._quat import cross, mul, normalized
+from margtrack.kernels.jit import njit
 from margtrack.kernels.triad import (
     OK,
     PARALLEL,

@@ -17,9 +17,8 @@ earth; positions in m, earth frame. Inputs are not validated here (the caller's 
 
 from __future__ import annotations
 
-from numba import njit
-
 from margtrack.kernels._quat import cross, mul
+from margtrack.kernels.jit import njit
 
 
 @njit(cache=True, inline="always")

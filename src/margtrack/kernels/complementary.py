@@ -54,10 +54,9 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
 from margtrack.kernels import contract, rest_null
 from margtrack.kernels._quat import cross, mul
+from margtrack.kernels.jit import njit
 from margtrack.kernels.screen import ACC_IGNORED, MAG_IGNORED
 from margtrack.kernels.triad import PARALLEL_SINE
 

@@ -28,9 +28,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
 
 from margtrack.kernels import screen
+from margtrack.kernels.jit import njit, prange
 from margtrack.kernels.triad import level, reference_triad, triad_unit, unit_pair
 
 K_READY = 0

@@ -17,8 +17,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from margtrack.kernels.jit import njit
 from margtrack.kernels.lowpass import prefilter_sensor
 from margtrack.kernels.triad import FASTMATH, OK, ZERO_ACC, level, unit_pair
 

@@ -96,8 +96,6 @@ and, with the bias, the bias of the raw rate (3) and its sd (3). Coefficients: `
 
 from __future__ import annotations
 
-from numba import njit
-
 from margtrack.kernels import contract
 from margtrack.kernels.ekf_model import (
     axis_noise,
@@ -154,6 +152,7 @@ from margtrack.kernels.ekf_step import (
     start_n,
     step_n,
 )
+from margtrack.kernels.jit import njit
 from margtrack.kernels.triad import (
     FASTMATH,
     OK,

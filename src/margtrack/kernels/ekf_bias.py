@@ -20,10 +20,9 @@ its sd (3).
 
 from __future__ import annotations
 
-from numba import njit
-
 from margtrack.kernels import contract
 from margtrack.kernels.ekf import E_X, FASTMATH, hold_n, start_n, step_n
+from margtrack.kernels.jit import njit
 
 N = 10  # [ω (3), q (4), b (3)]
 # the row and output offsets of ekf.offsets(N) and ekf.out_offsets(N)

@@ -35,9 +35,8 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
 from margtrack.kernels._quat import mul
+from margtrack.kernels.jit import njit
 from margtrack.kernels.triad import FASTMATH
 
 __all__ = [

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
 from margtrack.kernels import contract, rest_null
 from margtrack.kernels.davenport import field_from_dip, measured_dip
 from margtrack.kernels.ekf_model import (
@@ -23,6 +21,7 @@ from margtrack.kernels.ekf_model import (
     vector_reading,
 )
 from margtrack.kernels.gauss_newton import gauss_newton_solve
+from margtrack.kernels.jit import njit
 from margtrack.kernels.screen import ACC_IGNORED, MAG_IGNORED
 from margtrack.kernels.triad import (
     OK,

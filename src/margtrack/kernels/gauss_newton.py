@@ -28,10 +28,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from margtrack.kernels._quat import mul
 from margtrack.kernels.davenport import profile, reference_field
+from margtrack.kernels.jit import njit
 from margtrack.kernels.lowpass import prefilter_sensor
 from margtrack.kernels.triad import (
     FASTMATH,

@@ -35,10 +35,9 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
 from margtrack.kernels import contract, screen
 from margtrack.kernels._quat import exp_half, mul
+from margtrack.kernels.jit import njit
 
 #: ``ignored`` flag bits: no accelerometer correction (zero vector, the screening's "no
 #: measurement"; the sample is gyro-only, without a magnetometer term either)

@@ -6,10 +6,9 @@ outputs, no parameters of its own.
 
 from __future__ import annotations
 
-from numba import njit
-
 from margtrack.kernels import contract
 from margtrack.kernels._quat import exp_half, mul
+from margtrack.kernels.jit import njit
 
 G_Q = contract.N_CONTRACT  # 4: orientation, body to earth
 N_ROW = G_Q + 4

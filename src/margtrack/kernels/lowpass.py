@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from margtrack.kernels.jit import njit
 
 #: coefficients (b0, b1, b2, a1, a2) of the all-pass "filter" used while a filter is off
 PASS_THROUGH = (1.0, 0.0, 0.0, 0.0, 0.0)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from margtrack.kernels.jit import njit
 
 RN_TOTAL = 0
 RN_COUNT = 3

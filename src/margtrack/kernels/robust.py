@@ -60,10 +60,9 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
-
 from margtrack.kernels import contract
 from margtrack.kernels._quat import exp_half, mul, normalized
+from margtrack.kernels.jit import njit
 
 # -- stages of the accelerometer low-pass (``R_LP_STAGE``) ---------------------------------
 LP_EMPTY = 0  # no usable accelerometer sample since the start

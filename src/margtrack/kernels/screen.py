@@ -19,7 +19,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from margtrack.kernels.jit import njit
 
 # flag bits (margtrack.estimator.flags.Flag)
 INVALID = 1

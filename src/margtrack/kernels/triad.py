@@ -14,9 +14,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from margtrack.kernels._quat import cross, from_matrix, mul
+from margtrack.kernels.jit import njit
 from margtrack.kernels.lowpass import prefilter_sensor
 
 #: fast-math flags of the kernels: reciprocals, fused multiply-add, reassociation and

@@ -1,0 +1,175 @@
+"""numba's ``njit`` and ``prange``, with numba imported only when a kernel first runs.
+
+Kernel modules take ``njit`` and ``prange`` from here instead of from numba. Importing
+numba and loading its registries costs about half a second in every new process, whatever
+the kernel, so a kernel defined here is a :class:`LazyKernel` until it is first called from
+Python. That call
+
+1. runs an ahead-of-time build of the kernel when one matches its argument types
+   (:mod:`margtrack.kernels.aot`; numba is then never imported), or else
+2. imports numba once and turns *every* kernel defined so far into a real numba dispatcher
+   (same options, same ``cache=True`` files), rebinding the module globals that name a
+   kernel or ``prange``, so kernels calling kernels compile exactly as before. Kernels
+   defined after that are numba dispatchers from the start.
+
+The registry of kernels is process-wide by nature (numba's own dispatchers are too).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+from collections.abc import Callable
+from typing import Any
+
+__all__ = [
+    "LazyKernel", "kernels", "njit", "numba_loaded", "on_numba_load", "prange", "resolve_all",
+]
+
+
+class _PrangePlaceholder:
+    """Stands for ``numba.prange`` in kernel modules until numba is imported."""
+
+    def __call__(self, *args: int) -> range:  # pure Python use, as numba.prange does
+        return range(*args)
+
+    def __repr__(self) -> str:
+        return "prange (numba not imported yet)"
+
+
+prange: Any = _PrangePlaceholder()
+
+_KERNELS: list[LazyKernel] = []  # every kernel defined, numba's or not yet
+_ON_LOAD: list[Callable[[], None]] = []
+_NUMBA: Any = None
+_LOCK = threading.Lock()
+
+
+class LazyKernel:
+    """A kernel not compiled yet: a Python function and its ``njit`` options.
+
+    Calling it runs the ahead-of-time build or the numba dispatcher (see the module's
+    docstring); any other attribute (``signatures``, ``inspect_llvm`` ...) is the numba
+    dispatcher's. ``py_func`` is the Python function, as on a dispatcher.
+    """
+
+    def __init__(self, py_func: Callable[..., Any], options: dict[str, Any]) -> None:
+        self.py_func = py_func
+        self.options = options
+        self.dispatcher: Any = None
+        self.__doc__ = py_func.__doc__
+        self.__name__ = py_func.__name__
+        self.__qualname__ = py_func.__qualname__
+        self.__module__ = py_func.__module__
+        self.__wrapped__ = py_func
+
+    @property
+    def key(self) -> str:
+        """``module:qualname``, the kernel's name in ahead-of-time builds."""
+        return f"{self.py_func.__module__}:{self.py_func.__qualname__}"
+
+    def __call__(self, *args: Any) -> Any:
+        if self.dispatcher is not None:
+            return self.dispatcher(*args)
+        if not self.options.get("parallel"):
+            from margtrack.kernels import aot
+
+            compiled = aot.find(self, args)
+            if compiled is not None:
+                return compiled(*args)
+        dispatcher = self.resolve()
+        return dispatcher(*(a.resolve() if isinstance(a, LazyKernel) else a for a in args))
+
+    def resolve(self) -> Any:
+        """The numba dispatcher (numba is imported on the first call in a process)."""
+        if self.dispatcher is None:
+            resolve_all()
+        return self.dispatcher
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self.resolve(), name)
+
+    def __repr__(self) -> str:
+        state = "compiled" if self.dispatcher is not None else "not compiled yet"
+        return f"<kernel {self.key} ({state})>"
+
+
+def njit(*args: Any, **options: Any) -> Any:
+    """``numba.njit`` for kernel modules: ``@njit(cache=True, ...)`` or ``@njit``."""
+    if args and callable(args[0]) and not options:
+        return njit()(args[0])
+
+    def decorate(func: Callable[..., Any]) -> Any:
+        kernel = LazyKernel(func, options)
+        _KERNELS.append(kernel)
+        if _NUMBA is not None:
+            kernel.dispatcher = _NUMBA.njit(**options)(func)
+            return kernel.dispatcher
+        return kernel
+
+    return decorate
+
+
+def numba_loaded() -> bool:
+    """Whether this process has made its kernels numba dispatchers."""
+    return _NUMBA is not None
+
+
+def on_numba_load(callback: Callable[[], None]) -> Callable[[], None]:
+    """Call ``callback`` right after numba is imported, before anything compiles.
+
+    Called at once when numba is imported already (by the kernels or by anything else).
+    Returns a function that removes it.
+    """
+    if _NUMBA is not None or "numba" in sys.modules:
+        callback()
+        return lambda: None
+    _ON_LOAD.append(callback)
+
+    def remove() -> None:
+        if callback in _ON_LOAD:
+            _ON_LOAD.remove(callback)
+
+    return remove
+
+
+def resolve_all() -> None:
+    """Import numba and make every kernel defined so far a numba dispatcher."""
+    global _NUMBA
+    with _LOCK:
+        if _NUMBA is not None:
+            return
+        import numba
+
+        for callback in list(_ON_LOAD):
+            callback()
+        for kernel in _KERNELS:
+            kernel.dispatcher = numba.njit(**kernel.options)(kernel.py_func)
+        _rebind(numba.prange)
+        _NUMBA = numba
+
+
+def kernels() -> list[LazyKernel]:
+    """Every kernel defined in this process (``dispatcher`` set once numba is loaded)."""
+    return list(_KERNELS)
+
+
+def _rebind(real_prange: Any) -> None:
+    """Point every module global naming a kernel (or ``prange``) at the real object."""
+    for module in list(sys.modules.values()):
+        names = getattr(module, "__dict__", None)
+        if not isinstance(names, dict):
+            continue
+        for name, value in list(names.items()):
+            if isinstance(value, LazyKernel):
+                names[name] = value.dispatcher
+            elif isinstance(value, _PrangePlaceholder):
+                names[name] = real_prange
+
+
+if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
+    # numba's JIT switched off: kernels are their Python functions; nothing to defer
+    resolve_all()
