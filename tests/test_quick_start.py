@@ -8,10 +8,12 @@ to numba instead.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import h5py
@@ -115,7 +117,7 @@ def test_stale_corrupt_foreign_and_broken_builds_are_ignored(tmp_path, monkeypat
         "format": aot.MANIFEST_VERSION,
         "module": "margtrack_aot_test",
         "versions": aot._versions(),
-        "sources": {str(source): __import__("hashlib").sha256(source.read_bytes()).hexdigest()},
+        "sources": {str(source): hashlib.sha256(source.read_bytes()).hexdigest()},
         "exports": [{"kernel": kernel.key, "name": "k0", "args": [["float64"]]}],
     }
     assert aot._current(current, aot._versions())
@@ -176,3 +178,17 @@ def test_quick_start_build_serves_the_next_run_bit_for_bit_without_numba(tmp_pat
     with h5py.File(tmp_path / "out.h5") as a, h5py.File(tmp_path / "aot.h5") as b:
         assert np.array_equal(a["quat"][()], b["quat"][()])
         assert np.array_equal(a["flags"][()], b["flags"][()])
+
+
+def test_stale_builds_are_removed_after_a_day_and_current_ones_kept(tmp_path, monkeypatch):
+    monkeypatch.setenv("MARGTRACK_CACHE_DIR", str(tmp_path))
+    versions = aot._versions()
+    base = {"format": aot.MANIFEST_VERSION, "module": "m", "sources": {}, "exports": []}
+    old_stale = _write_build(tmp_path, "old_stale", {**base, "versions": {"numpy": "0"}})
+    new_stale = _write_build(tmp_path, "new_stale", {**base, "versions": {"numpy": "0"}})
+    old_current = _write_build(tmp_path, "old_current", {**base, "versions": versions})
+    day_ago = time.time() - aot.STALE_AFTER_S - 60
+    for folder in (old_stale, old_current):
+        os.utime(folder / "manifest.json", (day_ago, day_ago))
+    aot._prune(versions)
+    assert not old_stale.exists() and new_stale.exists() and old_current.exists()

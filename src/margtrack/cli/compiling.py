@@ -144,20 +144,15 @@ def quick_start_build(console: Console) -> Iterator[None]:
         yield
     if not recorded or not aot.worth_building(recorded):
         return
-    status = console.status(AOT_MESSAGE) if console.is_terminal else None
-    if status is None:
-        console.print(AOT_MESSAGE)
-    else:
-        status.start()
+    # a line, not a spinner: numba's compile notice (a spinner on a terminal) shows the
+    # kernels being built, and a console shows one live display at a time
+    console.print(AOT_MESSAGE)
     try:
         aot.build(recorded)
-    except Exception as exc:
+    except Exception as exc:  # any build failure only costs start-up time
         aot.remember_failure(exc)
         console.print(
             f"[yellow]note:[/] the quick-start build failed ({type(exc).__name__}: {exc}); "
             "margtrack works as before and only starts slower. MARGTRACK_AOT=0 stops trying.",
             soft_wrap=True,
         )
-    finally:
-        if status is not None:
-            status.stop()

@@ -48,6 +48,8 @@ MANIFEST_VERSION = 1
 _PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 
 ArgSpec = tuple[Any, ...]
+#: a build made from other sources or versions is removed once it is this old (s)
+STALE_AFTER_S = 86_400.0
 #: file in the cache folder noting a failed build (with the versions it failed with)
 _FAILED = "failed.json"
 
@@ -317,8 +319,9 @@ def recording() -> Iterator[Recorded]:
 def build(recorded: Recorded) -> Path | None:
     """Compile the recorded kernels into a new build; its folder, or None when not needed.
 
-    Builds that no longer match the sources or versions are removed. Raises what ``pycc``
-    raises (a missing C compiler, ...); the caller decides how loudly to say so.
+    Builds that no longer match the sources or versions are removed (:func:`_prune`).
+    Raises what ``pycc`` raises (a missing C compiler, ...); the caller decides how loudly
+    to say so.
     """
     if not recorded or not enabled():
         return None
@@ -414,10 +417,17 @@ def _compile(module: str, todo: list[tuple[jit.LazyKernel, Any]], folder: Path) 
 
 
 def _prune(versions: dict[str, str]) -> None:
-    """Remove builds made from other sources or versions, and abandoned staging folders."""
-    root = cache_dir()
-    if not root.is_dir():
-        return
+    """Remove builds made from other sources or versions a day ago or earlier.
+
+    The day's grace keeps two installations sharing the cache folder (a second virtual
+    environment, an edited checkout) from removing each other's builds in turn.
+    """
+    import time
+
     for folder, manifest in list(_manifests()):
-        if not _current(manifest, versions):
+        try:
+            age_s = time.time() - (folder / "manifest.json").stat().st_mtime
+        except OSError:
+            continue
+        if age_s > STALE_AFTER_S and not _current(manifest, versions):
             shutil.rmtree(folder, ignore_errors=True)
