@@ -146,9 +146,12 @@ def resolve_all() -> None:
 
         for callback in list(_ON_LOAD):
             callback()
+        real = {id(k): numba.njit(**k.options)(k.py_func) for k in _KERNELS}
+        # every global names its dispatcher before any kernel can run (and compile) through
+        # numba, also when another thread calls a kernel meanwhile
+        _rebind(real, numba.prange)
         for kernel in _KERNELS:
-            kernel.dispatcher = numba.njit(**kernel.options)(kernel.py_func)
-        _rebind(numba.prange)
+            kernel.dispatcher = real[id(kernel)]
         _NUMBA = numba
 
 
@@ -157,15 +160,15 @@ def kernels() -> list[LazyKernel]:
     return list(_KERNELS)
 
 
-def _rebind(real_prange: Any) -> None:
+def _rebind(real: dict[int, Any], real_prange: Any) -> None:
     """Point every module global naming a kernel (or ``prange``) at the real object."""
     for module in list(sys.modules.values()):
         names = getattr(module, "__dict__", None)
         if not isinstance(names, dict):
             continue
         for name, value in list(names.items()):
-            if isinstance(value, LazyKernel):
-                names[name] = value.dispatcher
+            if isinstance(value, LazyKernel) and id(value) in real:
+                names[name] = real[id(value)]
             elif isinstance(value, _PrangePlaceholder):
                 names[name] = real_prange
 
