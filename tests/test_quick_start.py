@@ -192,3 +192,19 @@ def test_stale_builds_are_removed_after_a_day_and_current_ones_kept(tmp_path, mo
         os.utime(folder / "manifest.json", (day_ago, day_ago))
     aot._prune(versions)
     assert not old_stale.exists() and new_stale.exists() and old_current.exists()
+
+
+def test_no_home_folder_means_no_builds_not_an_error(tmp_path, monkeypatch):
+    monkeypatch.delenv("MARGTRACK_CACHE_DIR", raising=False)
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+    monkeypatch.setenv("MARGTRACK_AOT", "1")
+
+    def no_home() -> Path:
+        raise RuntimeError("Could not determine home directory.")
+
+    monkeypatch.setattr(Path, "home", staticmethod(no_home))
+    aot.forget()
+    try:
+        assert aot.find(jit.LazyKernel(_kernel_for_test, {"cache": True}), (1.0,)) is None
+    finally:
+        aot.forget()

@@ -204,8 +204,11 @@ _INDEX: _Index | None = None
 
 
 def _manifests() -> Iterator[tuple[Path, dict[str, Any]]]:
-    root = cache_dir()
-    if not root.is_dir():
+    try:
+        root = cache_dir()
+        if not root.is_dir():
+            return
+    except (OSError, RuntimeError, KeyError):  # no home folder: no builds, numba as usual
         return
     for folder in sorted(root.iterdir()):
         try:
