@@ -17,8 +17,12 @@ the all-accelerometer IMU's estimate (:mod:`margtrack.estimators.all_acceleromet
   by the norm of the first field sample, so the result does not depend on the
   magnetometer's unit; the TRIAD error-angle covariance
   ``Ξθ`` (eq. 45) and ``V = ¼ Q̃ Ξθ Q̃ᵀ`` (eq. 46).
-- Update (eqs. 49-51) in Joseph form (algebraically eq. 51, numerically symmetric and
-  positive definite), then ``q`` normalised.
+- Update (eqs. 49-51) through ``S = L D Lᵀ``: ``P ← P - W D⁻¹ Wᵀ`` with ``W = P Hᵀ L⁻ᵀ``
+  (eq. 51, equal to its Joseph form for the optimal gain; exactly symmetric, and
+  positive definite over an hour of 25 Hz simulation and over the 16 BROAD trials run as
+  one 50-minute stream at 286 Hz, smallest/largest eigenvalue >= 1e-6), then ``q``
+  normalised. The covariance algebra is derived by hand for the structure of ``Φ``,
+  ``W``, ``V`` and ``H`` (:mod:`margtrack.kernels.bias_kf_cov`).
 - Input policy (margtrack's, :mod:`margtrack.estimator.screening`): a sample without a
   usable accelerometer or field still corrects what the other observes, the tilt alone or
   the heading alone (TRIAD needs both); a restart after a gap keeps the bias and its

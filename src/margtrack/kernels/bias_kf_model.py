@@ -1,17 +1,14 @@
 """The model of Ang's bias Kalman filter (003 eqs. 10-51): its matrices, measurements, updates.
 
-The pieces :mod:`margtrack.kernels.bias_kf` assembles into one filter step: ``Q̃`` and
+The pieces :mod:`margtrack.kernels.bias_kf_step` assembles into one filter step: ``Q̃`` and
 ``Φ_Q`` (eqs. 23-27), the quaternion noise of an angle covariance (eqs. 31, 46), the TRIAD
 measurement and its error covariance (eqs. 10-13, 38, 45), margtrack's decoupled
-tilt/heading measurement, the tilt gate's normalised innovation, and the Kalman updates
-(eqs. 48-51: prediction of ``P``, the full update with ``H = [I₄ 0]`` and the reduced one
-of the partial measurements).
-
-The small matrix algebra is written as loops over buffers the caller provides (the filter
-keeps them in its state row), using the structure of ``Φ`` and ``H``: 4.6 times the
-throughput of the same filter written with 7x7 ``@`` products and ``np.linalg.inv`` inside
-numba (``benchmarks/bias_kf_speed.py``). The covariance loops take their bounds from array
-shapes, which keeps LLVM from unrolling them and the compile time to a few seconds.
+tilt/heading measurement and tilt gate, and the reduced Kalman update of the partial
+measurements (:mod:`margtrack.kernels.bias_kf_partial`). The prediction and the full
+update (eqs. 48-51) are :mod:`margtrack.kernels.bias_kf_cov`. The matrix helpers write
+into buffers the caller provides (the filter keeps them in its state row); the tests use
+``fill_phi_q``, ``fill_qtilde`` and ``fill_quat_noise`` to build the dense matrices the
+hand-derived algebra is checked against.
 
 Convention notes (derived, the extracted text of 003 differs):
 
@@ -28,7 +25,9 @@ from __future__ import annotations
 
 import math
 
-from margtrack.kernels._linalg import add_kalman_gain, add_kalman_gain_n, cholesky
+from numpy.lib.stride_tricks import as_strided
+
+from margtrack.kernels._linalg import add_kalman_gain, cholesky
 from margtrack.kernels._quat import cross, mul, normalized
 from margtrack.kernels.jit import njit
 from margtrack.kernels.triad import (
@@ -36,6 +35,7 @@ from margtrack.kernels.triad import (
     PARALLEL,
     PARALLEL_SINE,
     reference_triad,
+    rotate,
     triad_unit,
     unit_pair,
 )
@@ -47,6 +47,15 @@ __all__ = [
     "fill_quat_noise",
     "fill_triad_cov",
 ]
+
+@njit(cache=True, inline="always")
+def _mat(vec, offset, rows, cols):
+    """The (rows, cols) row-major matrix at ``vec[offset:]``: a view, built in place (a
+    ``reshape`` costs a helper call, about ten times the arithmetic it would serve)."""
+    item = vec.strides[0]
+    return as_strided(vec[offset : offset + rows * cols], shape=(rows, cols),
+                      strides=(cols * item, item))
+
 
 @njit(cache=True)
 def fill_qtilde(w, x, y, z, out):
@@ -173,43 +182,63 @@ def _tilt_rotation(ax, ay, az, zx, zy, zz, fx, fy, fz):
     return 0.0, fx, fy, fz
 
 
-@njit(cache=True)
-def _decoupled(ax, ay, az, nx, ny, nz, zx, zy, zz, up, north):
+@njit(cache=True, inline="always")
+def _decoupled(qw, qx, qy, qz, ax, ay, az, nx, ny, nz, zx, zy, zz, ref, r0):
     """Tilt from the accelerometer, heading from the field levelled by the predicted tilt.
 
-    ``â``, ``n̂`` unit body accelerometer and field, ``ẑ`` the predicted body up. Returns
-    (flag, w, x, y, z, |ẑ × n̂|²): ``q_A = TRIAD(ẑ, n̂)`` has the predicted tilt and the
-    heading of the field projected on the plane normal to ``ẑ``; ``q = q_A ⊗ r`` with ``r``
-    the shortest rotation taking ``â`` to ``ẑ``, so ``q`` maps ``â`` to up. ``r``'s axis
-    ``â × ẑ`` is normal to ``ẑ``, i.e. horizontal in the earth frame: the tilt correction
-    leaves the heading alone. PARALLEL if ``ẑ`` and ``n̂`` are (nearly) parallel.
+    ``q⁻`` the predicted orientation, ``â``, ``n̂`` unit body accelerometer and field,
+    ``ẑ`` the predicted body up; ``ref[r0:r0 + 6]`` the reference triad's ``s1, s2``
+    (``triad.reference_triad`` of the earth's up and north). Returns (flag, w, x, y, z,
+    |ẑ × n̂|²): ``q_A = TRIAD(ẑ, n̂)`` (:func:`_levelled_heading`) has the predicted tilt and
+    the heading of the field projected on the plane normal to ``ẑ``; ``q = q_A ⊗ r`` with
+    ``r`` the shortest rotation taking ``â`` to ``ẑ``, so ``q`` maps ``â`` to up. ``r``'s
+    axis ``â × ẑ`` is normal to ``ẑ``, i.e. horizontal in the earth frame: the tilt
+    correction leaves the heading alone. PARALLEL if ``ẑ`` and ``n̂`` are (nearly) parallel.
     """
-    flag, hw, hx, hy, hz, c2 = _levelled_heading(nx, ny, nz, zx, zy, zz, up, north)
+    flag, hw, hx, hy, hz, c2, ex, ey, ez = _levelled_heading(qw, qx, qy, qz, nx, ny, nz,
+                                                             zx, zy, zz, ref, r0)
     if flag != OK:
         return flag, 1.0, 0.0, 0.0, 0.0, c2
-    cx, cy, cz = cross(zx, zy, zz, nx, ny, nz)
-    inv = 1.0 / math.sqrt(c2)
-    rw, rx, ry, rz = _tilt_rotation(ax, ay, az, zx, zy, zz, cx * inv, cy * inv, cz * inv)
+    rw, rx, ry, rz = _tilt_rotation(ax, ay, az, zx, zy, zz, ex, ey, ez)
     w, x, y, z = mul(hw, hx, hy, hz, rw, rx, ry, rz)
     return OK, w, x, y, z, c2
 
 
-@njit(cache=True)
-def _levelled_heading(nx, ny, nz, zx, zy, zz, up, north):
+@njit(cache=True, inline="always")
+def _levelled_heading(qw, qx, qy, qz, nx, ny, nz, zx, zy, zz, ref, r0):
     """``TRIAD(ẑ, n̂)``: the predicted tilt with the heading of the unit field ``n̂``.
 
-    Returns (flag, w, x, y, z, |ẑ × n̂|²); PARALLEL if ``ẑ`` and ``n̂`` are (nearly)
-    parallel (the field then has no horizontal direction).
+    ``ẑ = R(q⁻)ᵀ s1`` is the predicted body up of the unit ``q⁻`` and ``ref[r0:r0 + 6]``
+    the reference triad's ``s1`` (earth up) and ``s2 = s1 × north / |.|``. TRIAD maps
+    ``ẑ`` to ``s1`` and ``r₂ = ẑ × n̂ / |.|`` to ``s2``; ``q⁻`` already maps ``ẑ`` to
+    ``s1``, so ``TRIAD(ẑ, n̂) = h ⊗ q⁻`` with ``h`` the turn about ``s1`` taking
+    ``e₂ = R(q⁻) r₂`` (horizontal) to ``s2``: ``h ∝ (1 + e₂·s2, (e₂ × s2)·s1 s1)``, a half
+    turn about ``s1`` when ``e₂ = -s2``. The same quaternion as ``triad.triad_unit`` up to
+    rounding and sign, without its matrix, its four branches and four of its roots and
+    divisions. Returns (flag, w, x, y, z, |ẑ × n̂|², r₂); PARALLEL if ``ẑ`` and ``n̂`` are
+    (nearly) parallel (the field then has no horizontal direction).
     """
     cx, cy, cz = cross(zx, zy, zz, nx, ny, nz)
     c2 = cx * cx + cy * cy + cz * cz
     if c2 < PARALLEL_SINE * PARALLEL_SINE:
-        return PARALLEL, 1.0, 0.0, 0.0, 0.0, c2
-    s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z = reference_triad(
-        up[0], up[1], up[2], north[0], north[1], north[2]
-    )
-    w, x, y, z = triad_unit(zx, zy, zz, nx, ny, nz, s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z)
-    return OK, w, x, y, z, c2
+        return PARALLEL, 1.0, 0.0, 0.0, 0.0, c2, 0.0, 0.0, 0.0
+    inv = 1.0 / math.sqrt(c2)
+    cx, cy, cz = cx * inv, cy * inv, cz * inv
+    ux, uy, uz = ref[r0], ref[r0 + 1], ref[r0 + 2]
+    sx, sy, sz = ref[r0 + 3], ref[r0 + 4], ref[r0 + 5]
+    ex, ey, ez = rotate(qw, qx, qy, qz, cx, cy, cz)
+    cos_psi = ex * sx + ey * sy + ez * sz
+    tx, ty, tz = cross(ex, ey, ez, sx, sy, sz)
+    sin_psi = tx * ux + ty * uy + tz * uz
+    hw, hv = 1.0 + cos_psi, sin_psi
+    n2 = hw * hw + hv * hv
+    if n2 > 1e-30:
+        n = 1.0 / math.sqrt(n2)
+        hw, hv = hw * n, hv * n
+    else:  # e₂ = -s2: half a turn
+        hw, hv = 0.0, 1.0
+    w, x, y, z = mul(hw, hv * ux, hv * uy, hv * uz, qw, qx, qy, qz)
+    return OK, w, x, y, z, c2, cx, cy, cz
 
 
 @njit(cache=True)
@@ -225,83 +254,6 @@ def fill_decoupled_cov(zx, zy, zz, var_g, var_h, out):
     for i in range(3):
         for j in range(3):
             out[i, j] = (var_h - var_g) * z[i] * z[j] + (var_g if i == j else 0.0)
-
-
-@njit(cache=True)
-def _tilt_innovation_d2(p, qw, qx, qy, qz, mw, mx, my, mz, zx, zy, zz, var_g, qt, tmp, pth):
-    """Squared normalised tilt innovation (2 dof) of measurement ``m`` against ``q⁻``.
-
-    Innovation angle ``θ = 2 vec(q⁻* ⊗ m)`` (body frame), its part normal to the
-    predicted up ``ẑ`` against the tilt variance ``½ tr(P_θ⊥) + σ_G²`` per axis, with
-    ``P_θ = 4 Q̃ᵀ P_qq Q̃`` the state's angle covariance. ``qt`` (4, 3), ``tmp`` (4, 3),
-    ``pth`` (3, 3) are buffers.
-    """
-    _, ex, ey, ez = mul(qw, -qx, -qy, -qz, mw, mx, my, mz)
-    tx, ty, tz = 2.0 * ex, 2.0 * ey, 2.0 * ez
-    fill_qtilde(qw, qx, qy, qz, qt)
-    for r in range(4):
-        for c in range(3):
-            acc = 0.0
-            for k in range(4):
-                acc += p[r, k] * qt[k, c]
-            tmp[r, c] = acc
-    for r in range(3):
-        for c in range(3):
-            acc = 0.0
-            for k in range(4):
-                acc += qt[k, r] * tmp[k, c]
-            pth[r, c] = 4.0 * acc
-    z = (zx, zy, zz)
-    pzz = 0.0
-    for r in range(3):
-        for c in range(3):
-            pzz += z[r] * pth[r, c] * z[c]
-    along = tx * zx + ty * zy + tz * zz
-    normal2 = tx * tx + ty * ty + tz * tz - along * along
-    return normal2 / (0.5 * (pth[0, 0] + pth[1, 1] + pth[2, 2] - pzz) + var_g)
-
-
-@njit(cache=True, inline="always")
-def _cholesky(s, m, chol):
-    """``kernels._linalg.cholesky`` (the same operations), inlined so literal ``m`` unrolls."""
-    for r in range(m):
-        for c in range(r + 1):
-            acc = s[r, c]
-            for k in range(c):
-                acc -= chol[r, k] * chol[c, k]
-            if r == c:
-                if not acc > 0.0:
-                    return False
-                chol[r, r] = math.sqrt(acc)
-            else:
-                chol[r, c] = acc / chol[c, c]
-    return True
-
-
-@njit(cache=True)
-def _predict_covariance(p, g, gp):
-    """``P ← Φ P Φᵀ`` in place for ``Φ = [[G], [0, I]]``, ``G = [Φ_Q, Φ_B]`` (m, n) (eq. 48).
-
-    Only the top ``m`` = 4 rows and columns change (n = 7); ``gp`` is an (m, n) buffer.
-    The bounds are literals: LLVM unrolls the loops (same operations in the same order).
-    """
-    m, n = 4, 7
-    for r in range(m):
-        for c in range(n):
-            acc = 0.0
-            for k in range(n):
-                acc += g[r, k] * p[k, c]
-            gp[r, c] = acc
-    for r in range(m):
-        for c in range(r, m):
-            acc = 0.0
-            for k in range(n):
-                acc += gp[r, k] * g[c, k]
-            p[r, c] = acc
-            p[c, r] = acc
-        for c in range(m, n):
-            p[r, c] = gp[r, c]
-            p[c, r] = gp[r, c]
 
 
 @njit(cache=True, inline="always")
@@ -320,41 +272,6 @@ def _joseph(p, zmat, zh, kv, gain, n, m):
 
 
 @njit(cache=True)
-def _kalman_update(p, v, innov, chol, y, gain, zmat, kv, dx):
-    """Update with ``H = [I_m 0]`` (eqs. 49-51): fills ``dx = K ν``, ``P`` in Joseph form.
-
-    p (n, n) = (7, 7) in/out, v (m, m) = (4, 4) measurement covariance, innov (m,); the
-    rest are buffers. ``S = P_mm + V`` is factored by Cholesky and ``K = P Hᵀ S⁻¹``
-    obtained by two triangular solves; ``P = (I - KH) P (I - KH)ᵀ + K V Kᵀ``, then
-    mirrored so it is exactly symmetric. Returns False (nothing changed) if ``S`` is not
-    positive definite. Literal bounds, as in :func:`_predict_covariance`.
-    """
-    m, n = 4, 7
-    # S = P_mm + V, formed in zmat, which is free until Z is computed below
-    for r in range(m):
-        for c in range(r + 1):
-            zmat[r, c] = p[r, c] + v[r, c]
-    if not _cholesky(zmat, m, chol):
-        return False
-    for r in range(n):
-        dx[r] = 0.0
-    add_kalman_gain_n(chol, m, n, p, innov, dx, y, gain)  # K = P Hᵀ S⁻¹ (eq. 49), dx = K ν (eq. 50)
-    for r in range(n):  # Z = (I - KH) P, KV
-        for c in range(n):
-            acc = p[r, c]
-            for k in range(m):
-                acc -= gain[r, k] * p[k, c]
-            zmat[r, c] = acc
-        for c in range(m):
-            acc = 0.0
-            for k in range(m):
-                acc += gain[r, k] * v[k, c]
-            kv[r, c] = acc
-    _joseph(p, zmat, zmat, kv, gain, n, m)  # with H = [I_m 0], Z Hᵀ is Z's first m columns
-    return True
-
-
-@njit(cache=True)
 def _reduced_update(p, hq, m, v, innov, chol, y, gain, hp, zmat, zh, kv, dx):
     """Kalman update with ``H = [Hq 0]``, ``Hq`` the first ``m`` rows of ``hq`` (3, 4).
 
@@ -363,7 +280,7 @@ def _reduced_update(p, hq, m, v, innov, chol, y, gain, hp, zmat, zh, kv, dx):
     ``a_k``, ``v`` (m, m) their covariance, ``innov`` (m,) the innovation along them. The
     directions not measured get no update at all (rather than a large variance, which
     would still shrink their covariance a little at every sample). Fills ``dx = K ν`` and
-    ``P`` in Joseph form as :func:`_kalman_update`; False (nothing changed) if the
+    ``P`` in Joseph form (:func:`_joseph`); False (nothing changed) if the
     innovation covariance is not positive definite. The rest are buffers.
     """
     n = p.shape[0]
@@ -427,6 +344,15 @@ def _fill_direction(qt, ax, ay, az, hq, row):
     """``hq[row] = (Q̃ a)ᵀ``: the quaternion direction ``q ⊗ (0, a)`` of body axis ``a``."""
     for k in range(4):
         hq[row, k] = qt[k, 0] * ax + qt[k, 1] * ay + qt[k, 2] * az
+
+
+@njit(cache=True, inline="always")
+def _gate_weight(ratio, exponent):
+    """``ratio ** exponent``, as ``ratio √ratio`` for the default exponent 1.5 (a fifth of
+    ``pow``'s time; equal to its last bit or two)."""
+    if exponent == 1.5:
+        return ratio * math.sqrt(ratio)
+    return ratio**exponent
 
 
 @njit(cache=True)
