@@ -251,6 +251,9 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         self.kernel.update(
             state.rows, state.clock, self._coefs, float(dt), g, a, m, has, q_out, x_out, flags
         )
+        # a kernel has run: the module now names numba's dispatcher (kernels/jit.py), which
+        # the lean path calls without the lazy wrapper in between
+        self._update_one = self.kernel.update_one
         self._last_flags = flags
         self._flag_one = None
         return q_out[0].copy() if one else q_out.copy()
