@@ -6,10 +6,8 @@ Each estimator's module loads on first use (``margtrack.estimators.Fqa`` imports
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
-
 from margtrack.estimators.base import Estimate, Estimator, Params, State, initial_orientation
+from margtrack.lazy import lazy_names
 
 _WHERE = {
     "Davenport": "davenport",
@@ -47,11 +45,6 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    if name in _WHERE:
-        return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(__all__) | set(globals()))
+__getattr__, __dir__ = lazy_names(
+    __name__, _WHERE, eager=["Estimate", "Estimator", "Params", "State", "initial_orientation"]
+)

@@ -6,8 +6,7 @@ Each filter's module loads on first use (``margtrack.filters.Robust`` imports
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from margtrack.lazy import lazy_names
 
 _WHERE = {
     "Bachmann": "complementary",
@@ -30,11 +29,4 @@ _WHERE = {
 __all__ = sorted(_WHERE)
 
 
-def __getattr__(name: str) -> Any:
-    if name in _WHERE:
-        return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(__all__) | set(globals()))
+__getattr__, __dir__ = lazy_names(__name__, _WHERE)

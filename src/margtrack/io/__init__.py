@@ -9,12 +9,12 @@ writes.
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from margtrack.lazy import lazy_names
 from margtrack.recording import Recording
 from margtrack.units import unit_factor
 
@@ -48,16 +48,6 @@ _WHERE = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    if name in _WHERE:
-        return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(__all__) | set(globals()))
-
-
 __all__ = [
     "BroadTrial",
     "EstimateFile",
@@ -85,6 +75,8 @@ __all__ = [
     "write_hdf5",
     "write_live_recording",
 ]
+
+__getattr__, __dir__ = lazy_names(__name__, _WHERE, eager=__all__)
 
 HDF5_SUFFIXES = (".h5", ".hdf5")
 CSV_SUFFIXES = (".csv",)

@@ -26,8 +26,7 @@ pylsl.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from margtrack.lazy import lazy_names
 
 _WHERE = {
     "Avatars": "avatars",
@@ -67,11 +66,4 @@ _WHERE = {
 __all__ = sorted(_WHERE)
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _WHERE:
-        raise AttributeError(f"module 'margtrack.live' has no attribute {name!r}")
-    return getattr(importlib.import_module(f"margtrack.live.{_WHERE[name]}"), name)
-
-
-def __dir__() -> list[str]:
-    return sorted(__all__)
+__getattr__, __dir__ = lazy_names(__name__, _WHERE)
