@@ -158,3 +158,49 @@ def test_many_steps_equal_the_dense_joseph_form_ekf(approach, n):
     assert worst_x < tol and worst_p < tol, (worst_x, worst_p)
     if n == 10:  # the filter's bias moved from 0 towards the simulated one
         assert np.all(np.abs(x[7:]) > 0.0)
+
+
+@pytest.mark.parametrize("max_iterations", [0, 1, 2, 5, 50])
+@pytest.mark.parametrize("tolerance", [0.0, 1e-14, 1e-4])
+def test_inline_fit_is_the_shared_gauss_newton_solver(max_iterations, tolerance):
+    """ekf_fit.fit (the step's inline Gauss-Newton fit, which forms the normal equations
+    only where the next update is taken) returns the quaternion and the iteration count of
+    gauss_newton_solve, from guesses near and far (halvings) and with vectors that do not
+    fit one rotation (the cap, not the tolerance, ends it)."""
+    from margtrack.kernels.ekf_fit import fit
+
+    rng = np.random.default_rng(7)
+    up = np.array([0.0, 0.0, 1.0])
+    field = np.array([0.0, np.cos(1.1), -np.sin(1.1)])
+    iterations_seen = set()
+    for trial in range(300):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        # body readings of the references at q, disturbed (more for later trials)
+        noise = 0.002 * (1 + trial % 5) ** 2
+        g = _rotate_to_body(q, up) + noise * rng.normal(size=3)
+        m = _rotate_to_body(q, field) + noise * rng.normal(size=3)
+        flag, ax, ay, az, mx, my, mz = unit_pair(*g, *m)
+        assert flag == 0
+        guess = q + (0.05 if trial % 3 else 1.5) * rng.normal(size=4)
+        want = gauss_newton_solve(ax, ay, az, mx, my, mz, *up, *field, *guess, 0.8, tolerance,
+                                  max_iterations)
+        got = fit(ax, ay, az, mx, my, mz, *up, *field, *guess, 0.8, tolerance, max_iterations)
+        assert got[0] == want[0]
+        assert got[5] == want[5]
+        np.testing.assert_allclose(got[1:5], want[1:5], rtol=0, atol=1e-12)
+        iterations_seen.add(want[5])
+    # the cap was hit (where the last normal equations are skipped)
+    if max_iterations <= 2 or (tolerance == 0.0 and max_iterations <= 5):
+        assert max(iterations_seen) == max_iterations
+
+
+def _rotate_to_body(q, v):
+    """R(q)ᵀ v for a unit quaternion q = [w, x, y, z] (body-to-earth)."""
+    w, x, y, z = q
+    r = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+    return r.T @ v

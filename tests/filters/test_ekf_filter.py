@@ -259,3 +259,23 @@ def test_bad_input_and_state_are_refused():
         est.state = state
     np.testing.assert_array_equal(est.state.rows, before.rows)  # left as it was
     assert frames.check_frame(est.params.frame) == "ENU"
+
+
+def test_interval_constants_survive_timestamp_rounding_and_follow_a_new_rate():
+    """The interval's constants (a dozen exp/expm1) are kept while the interval moves only
+    by its timestamps' rounding (``DT_REUSE_REL``) and renewed when the rate changes; the
+    estimate equals the one of exactly regular intervals to the constants' error."""
+    rec = _noisy_recording(3.0, rate=100.0)
+    n = rec.t.shape[0]
+    t_rounded = 1000.0 + np.arange(n) * 0.01  # intervals differ by ~1e-13 s
+    assert np.ptp(np.diff(t_rounded)) > 0.0
+    est = MarinsEkf()
+    out = est.run(gyr=rec.gyr, acc=rec.acc, mag=rec.mag, t=t_rounded)
+    row = est.state.rows[0]
+    assert row[kernel.E_DT] == t_rounded[1] - t_rounded[0]  # computed once, then kept
+    regular = MarinsEkf().run(gyr=rec.gyr, acc=rec.acc, mag=rec.mag, t=np.arange(n) * 0.01)
+    np.testing.assert_allclose(out.quat, regular.quat, rtol=0, atol=1e-9)
+    # a new rate renews them
+    t_next = t_rounded[-1] + 0.02 * np.arange(1, 11)
+    est.run(gyr=rec.gyr[:10], acc=rec.acc[:10], mag=rec.mag[:10], t=t_next)
+    assert est.state.rows[0][kernel.E_DT] == pytest.approx(0.02, rel=1e-9)

@@ -31,7 +31,8 @@ differences): ``F_ωω = diag(a)``, ``F_qω = G diag(c)``,
 Measurements:
 
 - approach 2 (001 4.3, the paper's choice): ``z = [gyro, q_GN]``, ``H = I₇``, with ``q_GN``
-  the Gauss-Newton quaternion (001 eqs. 20-23, :func:`gauss_newton_solve`) started from
+  the Gauss-Newton quaternion (001 eqs. 20-23, :func:`margtrack.kernels.ekf_fit.fit`, the
+  shared ``gauss_newton_solve`` inlined) started from
   the predicted quaternion, its sign chosen nearest the prediction (002's closing remark);
 - approach 1 (001 4.1): ``z = [gyro, â, m̂]``, the unit accelerometer and magnetometer
   vectors, ``h(x) = [ω, R(q)ᵀ u/|q|², R(q)ᵀ m_ref/|q|²]`` (eq. 19's form, with ``u`` up and
@@ -81,7 +82,8 @@ contract's slots (offsets ``E_*``, the same for both sizes up to ``E_X``):
 - ``E_DT``, ``E_GEN``, ``E_K`` (18): the interval-dependent constants (per axis ``a``,
   ``c``, Var Δω, Cov(Δφ, Δω), Var Δφ, the bias increment's variance) of the interval
   ``E_DT`` and the coefficient generation ``E_GEN`` they were computed for: recomputed
-  only when either changes;
+  only when the generation changes or the interval moves by more than ``DT_REUSE_REL``
+  (relative; timestamps' rounding moves it at every sample);
 - ``E_X`` (n) the state ``[ω, q(, b)]`` (q body to earth in the output frame, any
   non-zero norm in a state set by hand); then (offsets from n, :func:`offsets`) its
   covariance (n²), row-major, both triangles; the scratch ``P h`` of an update (n, not
@@ -234,12 +236,16 @@ def _start(row, coef, first, qw, qx, qy, qz):
     start_n(row, coef, first, qw, qx, qy, qz, N)
 
 
-@njit(cache=True, fastmath=FASTMATH)
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", _nrt=False)
 def _step(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
     """:func:`step_n` for the 7-state filter.
 
     Not inlined into the entry points (unlike ``_start`` and ``_hold``): compiled once and
     called, which keeps the kernels' compilation short at no measurable cost per sample.
+    Without numba's reference counting (``_nrt=False``: the step creates no arrays; the
+    helpers it inlines would otherwise count their array arguments, a dozen atomic calls
+    per sample) and with numpy's division semantics (no zero checks: every divisor is
+    guarded or positive).
     """
     return step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out, N)
 

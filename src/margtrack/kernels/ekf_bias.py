@@ -48,9 +48,10 @@ def _start(row, coef, first, qw, qx, qy, qz):
     start_n(row, coef, first, qw, qx, qy, qz, N)
 
 
-@njit(cache=True, fastmath=FASTMATH)
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", _nrt=False)
 def _step(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
-    """:func:`margtrack.kernels.ekf.step_n` with the bias state (compiled once, called)."""
+    """:func:`margtrack.kernels.ekf.step_n` with the bias state (compiled once, called;
+    the options of :func:`margtrack.kernels.ekf._step`)."""
     return step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out, N)
 
 

@@ -67,8 +67,9 @@ def exp_half(tx, ty, tz):
         ds = -1.0 / 24.0 + a2 / 960.0 - a2 * a2 / 107520.0
     else:
         sin_h, cos_h = math.sin(0.5 * alpha), math.cos(0.5 * alpha)
-        s = sin_h / alpha
-        ds = (0.5 * cos_h * alpha - sin_h) / (alpha * a2)
+        ia = 1.0 / alpha
+        s = sin_h * ia
+        ds = (0.5 * cos_h * alpha - sin_h) * (ia * ia * ia)
     e = (math.cos(0.5 * alpha), s * tx, s * ty, s * tz)
     d = (
         (-0.5 * s * tx, -0.5 * s * ty, -0.5 * s * tz),
@@ -93,19 +94,20 @@ def exp_jacobian(tx, ty, tz, out):
 
 
 @njit(cache=True, inline="always")
-def _g_row(l0, l1, l2, l3, d, nq):
-    """One row of ``G = L(q) ∂E/∂θ / |q|`` from a row of ``L(q)``."""
+def _g_row(l0, l1, l2, l3, d, inq):
+    """One row of ``G = L(q) ∂E/∂θ / |q|`` from a row of ``L(q)`` (inq = 1/|q|)."""
     return (
-        (l0 * d[0][0] + l1 * d[1][0] + l2 * d[2][0] + l3 * d[3][0]) / nq,
-        (l0 * d[0][1] + l1 * d[1][1] + l2 * d[2][1] + l3 * d[3][1]) / nq,
-        (l0 * d[0][2] + l1 * d[1][2] + l2 * d[2][2] + l3 * d[3][2]) / nq,
+        (l0 * d[0][0] + l1 * d[1][0] + l2 * d[2][0] + l3 * d[3][0]) * inq,
+        (l0 * d[0][1] + l1 * d[1][1] + l2 * d[2][1] + l3 * d[3][1]) * inq,
+        (l0 * d[0][2] + l1 * d[1][2] + l2 * d[2][2] + l3 * d[3][2]) * inq,
     )
 
 
 @njit(cache=True, inline="always")
-def _f_row(e0, e1, e2, e3, u, q0, q1, q2, q3, n2):
-    """One row of ``F_qq = R(E) - u qᵀ / |q|²`` from a row of ``R(E)``."""
-    return (e0 - u * q0 / n2, e1 - u * q1 / n2, e2 - u * q2 / n2, e3 - u * q3 / n2)
+def _f_row(e0, e1, e2, e3, u, q0, q1, q2, q3, in2):
+    """One row of ``F_qq = R(E) - u qᵀ / |q|²`` from a row of ``R(E)`` (in2 = 1/|q|²)."""
+    un = u * in2
+    return (e0 - un * q0, e1 - un * q1, e2 - un * q2, e3 - un * q3)
 
 
 @njit(cache=True, inline="always")
@@ -117,25 +119,26 @@ def transition_terms(w0, w1, w2, qw, qx, qy, qz, a0, a1, a2, c0, c1, c2):
     ``G = ∂q⁺/∂φ`` (4 x 3; ``F_qω = G diag(c)``), ``F_qq`` (4 x 4) and ``∂E/∂θ`` (4 x 3).
     """
     n2 = qw * qw + qx * qx + qy * qy + qz * qz
-    nq = math.sqrt(n2)
-    t0, t1, t2 = c0 * w0 / nq, c1 * w1 / nq, c2 * w2 / nq  # θ = c ω / |q|
+    inq = 1.0 / math.sqrt(n2)  # (one division: multiplications by it below)
+    in2 = inq * inq
+    t0, t1, t2 = c0 * w0 * inq, c1 * w1 * inq, c2 * w2 * inq  # θ = c ω / |q|
     e, d = exp_half(t0, t1, t2)
     e0, e1, e2, e3 = e
     pw, px, py, pz = mul(qw, qx, qy, qz, e0, e1, e2, e3)  # eqs. 12-15, exact flow
     xn = (a0 * w0, a1 * w1, a2 * w2, pw, px, py, pz)  # eqs. 9-11
     g = (  # G = L(q) ∂E/∂θ / |q|
-        _g_row(qw, -qx, -qy, -qz, d, nq),
-        _g_row(qx, qw, -qz, qy, d, nq),
-        _g_row(qy, qz, qw, -qx, d, nq),
-        _g_row(qz, -qy, qx, qw, d, nq),
+        _g_row(qw, -qx, -qy, -qz, d, inq),
+        _g_row(qx, qw, -qz, qy, d, inq),
+        _g_row(qy, qz, qw, -qx, d, inq),
+        _g_row(qz, -qy, qx, qw, d, inq),
     )
     # F_qq = R(E) - (q⁺ ⊗ (0, θ/2)) qᵀ / |q|²  (the |q| in θ = c ω / |q|)
     u0, u1, u2, u3 = mul(pw, px, py, pz, 0.0, 0.5 * t0, 0.5 * t1, 0.5 * t2)
     f = (
-        _f_row(e0, -e1, -e2, -e3, u0, qw, qx, qy, qz, n2),
-        _f_row(e1, e0, e3, -e2, u1, qw, qx, qy, qz, n2),
-        _f_row(e2, -e3, e0, e1, u2, qw, qx, qy, qz, n2),
-        _f_row(e3, e2, -e1, e0, u3, qw, qx, qy, qz, n2),
+        _f_row(e0, -e1, -e2, -e3, u0, qw, qx, qy, qz, in2),
+        _f_row(e1, e0, e3, -e2, u1, qw, qx, qy, qz, in2),
+        _f_row(e2, -e3, e0, e1, u2, qw, qx, qy, qz, in2),
+        _f_row(e3, e2, -e1, e0, u3, qw, qx, qy, qz, in2),
     )
     return xn, g, f, d
 
@@ -204,7 +207,7 @@ def process_noise(g, h, tau_s, rate_var, out):
                 out[3 + r, 3 + c] += g[r, k] * vp * g[c, k]
 
 
-@njit(cache=True, fastmath=FASTMATH)
+@njit(cache=True, fastmath=FASTMATH, inline="always")
 def predict_covariance(st, p, n, a, c, g, f, vw, cpw, vp, vb):
     """``P ← F P Fᵀ + Q`` in place (module docstring), P at ``st[p:]`` (n x n, stride n).
 
@@ -255,7 +258,7 @@ def predict_covariance(st, p, n, a, c, g, f, vw, cpw, vp, vb):
         st[p + k * (n + 1)] += vb[k - 7]
 
 
-@njit(cache=True, fastmath=FASTMATH)
+@njit(cache=True, fastmath=FASTMATH, inline="always")
 def mirror(st, p, n):
     """Copy P's upper triangle to its lower one (P at ``st[p:]``, n x n)."""
     for i in range(n):
@@ -269,7 +272,7 @@ def _sym(st, p, n, i, j):
     return st[p + i * n + j] if i <= j else st[p + j * n + i]
 
 
-@njit(cache=True, fastmath=FASTMATH)
+@njit(cache=True, fastmath=FASTMATH, inline="always")
 def scalar_update(st, x, p, n, ph, i0, i1, h0, h1, h2, h3, nu, r):
     """One scalar measurement ``z = hᵀ x + v``, ``Var v = r``: x, P in place (docstring).
 
@@ -303,12 +306,16 @@ def scalar_update(st, x, p, n, ph, i0, i1, h0, h1, h2, h3, nu, r):
     kv = nu * inv
     for j in range(n):
         st[x + j] += st[ph + j] * kv
+    unit = i0 >= 0 and i1 < 0  # h = e_i0: row i0 is set below, skipped here
     for i in range(n):
+        if unit and i == i0:
+            continue
         ki = st[ph + i] * inv
         o = p + i * n
         for j in range(i, n):
-            st[o + j] -= ki * st[ph + j]
-    if i0 >= 0 and i1 < 0:  # row i0 of P⁺ is P_i0 r / s: without the cancellation
+            if not (unit and j == i0):
+                st[o + j] -= ki * st[ph + j]
+    if unit:  # row i0 of P⁺ is P_i0 r / s: without the cancellation
         scale = r * inv
         for j in range(i0):
             st[p + j * n + i0] = st[ph + j] * scale
@@ -328,16 +335,18 @@ def vector_reading(w, x, y, z, vx, vy, vz):
     n2 = w * w + x * x + y * y + z * z
     p0, p1, p2, p3 = mul(w, -x, -y, -z, 0.0, vx, vy, vz)
     _, gx, gy, gz = mul(p0, p1, p2, p3, w, x, y, z)
-    zx, zy, zz = gx / n2, gy / n2, gz / n2
+    in2 = 1.0 / n2
+    zx, zy, zz = gx * in2, gy * in2, gz * in2
     # columns vec(p ⊗ e_k): k = w (p1, p2, p3), x (p0, p3, -p2), y (-p3, p0, p1),
     # z (p2, -p1, p0)
+    i2 = 2.0 * in2
     jac = (
-        (2.0 * (p1 - zx * w) / n2, 2.0 * (p0 - zx * x) / n2, 2.0 * (-p3 - zx * y) / n2,
-         2.0 * (p2 - zx * z) / n2),
-        (2.0 * (p2 - zy * w) / n2, 2.0 * (p3 - zy * x) / n2, 2.0 * (p0 - zy * y) / n2,
-         2.0 * (-p1 - zy * z) / n2),
-        (2.0 * (p3 - zz * w) / n2, 2.0 * (-p2 - zz * x) / n2, 2.0 * (p1 - zz * y) / n2,
-         2.0 * (p0 - zz * z) / n2),
+        (i2 * (p1 - zx * w), i2 * (p0 - zx * x), i2 * (-p3 - zx * y),
+         i2 * (p2 - zx * z)),
+        (i2 * (p2 - zy * w), i2 * (p3 - zy * x), i2 * (p0 - zy * y),
+         i2 * (-p1 - zy * z)),
+        (i2 * (p3 - zz * w), i2 * (-p2 - zz * x), i2 * (p1 - zz * y),
+         i2 * (p0 - zz * z)),
     )
     return (zx, zy, zz), jac
 

@@ -12,6 +12,7 @@ import math
 
 from margtrack.kernels import contract, rest_null
 from margtrack.kernels.davenport import field_from_dip, measured_dip
+from margtrack.kernels.ekf_fit import fit
 from margtrack.kernels.ekf_model import (
     axis_noise,
     mirror,
@@ -20,7 +21,6 @@ from margtrack.kernels.ekf_model import (
     transition_terms,
     vector_reading,
 )
-from margtrack.kernels.gauss_newton import gauss_newton_solve
 from margtrack.kernels.jit import njit
 from margtrack.kernels.screen import ACC_IGNORED, MAG_IGNORED
 from margtrack.kernels.triad import (
@@ -36,6 +36,12 @@ from margtrack.kernels.triad import (
 NOT_PD = 5
 #: the gyroscope measurement is limited to this, rad/s per axis (no sensor reaches it)
 MAX_RATE_RAD_S = 1e6
+#: the interval's constants (a dozen exp/expm1) are kept while the interval stays within
+#: this relative distance of the one they were computed for: the intervals of a regular
+#: series differ by the rounding of their timestamps (t = i / 285.714 s: up to 1e-10
+#: relative at t = 3000 s), which would otherwise recompute them at many samples. The
+#: constants' relative error is then below 3e-9 (Var Δφ ∝ h³).
+DT_REUSE_REL = 1e-9
 
 # -- coefficients (after the contract's screening coefficients) ---------------------------
 C_APPROACH = 0  # 1 or 2
@@ -171,8 +177,10 @@ def _outputs(row, x_out, iterations, code, nx, ny, nz, n):
 
 @njit(cache=True, inline="always")
 def _constants(row, coef, h):
-    """The interval's constants (``E_K``), recomputed when h or the coefficients change."""
-    if row[E_DT] != h or row[E_GEN] != coef[C_GEN]:
+    """The interval's constants (``E_K``), recomputed when h changes by more than
+    ``DT_REUSE_REL`` (relative) from the interval they were computed for, or the
+    coefficients change."""
+    if not abs(row[E_DT] - h) <= DT_REUSE_REL * h or row[E_GEN] != coef[C_GEN]:
         for k in range(3):
             tau = coef[C_TAU + k]
             row[E_K + k] = math.exp(-h / tau)
@@ -205,10 +213,32 @@ def _update_vector(row, n, zv, jac, meas0, meas1, meas2, var, pw, px, py, pz):
 
 
 @njit(cache=True, inline="always")
+def _unit_update(row, n, k, nu, var):
+    """The scalar update of state component k (``h = e_k``) by innovation nu, variance var."""
+    p, ph, _, _ = offsets(n)
+    return scalar_update(row, E_X, p, n, ph, k, -1, 0.0, 0.0, 0.0, 0.0, nu, var)
+
+
+@njit(cache=True, inline="always")
+def _gyro_update(row, coef, n, rate, k, ih):
+    """The gyroscope's axis k: it measures ω_k (or ω_k + b_k with the bias state), the rate
+    limited to ±``MAX_RATE_RAD_S``; variance density² / h (ih = 1/h)."""
+    p, ph, _, _ = offsets(n)
+    rate = min(max(rate, -MAX_RATE_RAD_S), MAX_RATE_RAD_S)
+    nu = rate - row[E_X + k]
+    kb = -1
+    if n > 7:
+        nu -= row[E_X + 7 + k]
+        kb = 7 + k
+    return scalar_update(row, E_X, p, n, ph, k, kb, 0.0, 0.0, 0.0, 0.0, nu,
+                         coef[C_GYR_VAR + k] * ih)
+
+
+@njit(cache=True, inline="always")
 def step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out, n):
     """One screened sample: predict over h (0: output the state as it is), update from the
     gyroscope and the accelerometer/magnetometer pair (module docstring); the flag bits."""
-    p, ph, _, _ = offsets(n)
+    p = offsets(n)[0]
     nx, ny, nz = rest_null.step_one(
         row, E_NULL, coef, C_NULL, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, h
     )
@@ -228,36 +258,43 @@ def step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
         hx, hy, hz = row[E_FIELD], row[E_FIELD + 1], row[E_FIELD + 2]
     else:
         hx, hy, hz = coef[C_FIELD], coef[C_FIELD + 1], coef[C_FIELD + 2]
-    x = row[E_X : E_X + n]  # (one-dimensional views of the row cost nothing)
+    X = E_X  # the state's offset in the row (no view: a view costs reference counting)
     flag = OK
     iterations = 0
     if h > 0.0:
         # -- prediction: x⁺ = f(x), P = F P Fᵀ + Q ----------------------------------------
         _constants(row, coef, h)
         a, c = _k3(row, 0), _k3(row, 3)
-        xn, g, f, _ = transition_terms(x[0], x[1], x[2], x[3], x[4], x[5], x[6],
-                                       a[0], a[1], a[2], c[0], c[1], c[2])
+        xn, g, f, _ = transition_terms(row[X], row[X + 1], row[X + 2], row[X + 3], row[X + 4],
+                                       row[X + 5], row[X + 6], a[0], a[1], a[2], c[0], c[1],
+                                       c[2])
         predict_covariance(row, p, n, a, c, g, f, _k3(row, 6), _k3(row, 9), _k3(row, 12),
                            _k3(row, 15))
         for k in range(7):
-            x[k] = xn[k]
-        pw, px, py, pz = x[3], x[4], x[5], x[6]
+            row[X + k] = xn[k]
+        pw, px, py, pz = row[X + 3], row[X + 4], row[X + 5], row[X + 6]
         # -- measurement: the gyroscope (ω, or ω + b), then the pair ----------------------
-        ok = True
-        for k in range(3):
-            rate = min(max(gyr[k], -MAX_RATE_RAD_S), MAX_RATE_RAD_S)
-            if n > 7:
-                nu = rate - x[k] - x[7 + k]
-                kb = 7 + k
-            else:
-                nu = rate - x[k]
-                kb = -1
-            if ok:
-                ok = scalar_update(row, E_X, p, n, ph, k, kb, 0.0, 0.0, 0.0, 0.0, nu,
-                                   coef[C_GYR_VAR + k] / h)
         approach = coef[C_APPROACH]
         res = unit_pair(a0, a1, a2, m0, m1, m2)
         flag = res[0]
+        ax, ay, az, mx, my, mz = res[1], res[2], res[3], res[4], res[5], res[6]
+        gw, gx, gy, gz = pw, px, py, pz
+        if flag == OK and approach == 2.0:  # the Gauss-Newton quaternion, from q⁻ alone
+            inq = 1.0 / math.sqrt(pw ** 2 + px ** 2 + py ** 2 + pz ** 2)
+            gn_ok, gw, gx, gy, gz, iterations = fit(
+                ax, ay, az, mx, my, mz, ux, uy, uz, hx, hy, hz, pw * inq, px * inq,
+                py * inq, pz * inq, coef[C_MAG_WEIGHT], coef[C_GN_TOL], int(coef[C_GN_MAX_IT]),
+            )
+            if not gn_ok:
+                flag = SOLVER_FAILED
+            elif gw * pw + gx * px + gy * py + gz * pz < 0.0:
+                gw, gx, gy, gz = -gw, -gx, -gy, -gz  # sign nearest q⁻
+        ih = 1.0 / h  # the measurement variances are density² / h
+        # one call per component with its index a literal (loops over the index would
+        # leave it a variable: masked and scattered row copies, stalls on every update)
+        ok = _gyro_update(row, coef, n, gyr[0], 0, ih)
+        ok = ok and _gyro_update(row, coef, n, gyr[1], 1, ih)
+        ok = ok and _gyro_update(row, coef, n, gyr[2], 2, ih)
         if flag == ZERO_MAG:  # gravity direction alone (module docstring)
             na = math.sqrt(a0 ** 2 + a1 ** 2 + a2 ** 2)
             zv, jac = vector_reading(pw, px, py, pz, ux, uy, uz)
@@ -268,48 +305,35 @@ def step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
             if ok:
                 ok = _update_vector(row, n, zv, jac, a0 / na, a1 / na, a2 / na, var,
                                     pw, px, py, pz)
-        elif flag == OK:
-            ax, ay, az, mx, my, mz = res[1], res[2], res[3], res[4], res[5], res[6]
-            if approach == 2.0:
-                nq = math.sqrt(pw ** 2 + px ** 2 + py ** 2 + pz ** 2)
-                gn_ok, gw, gx, gy, gz, iterations, _ = gauss_newton_solve(
-                    ax, ay, az, mx, my, mz, ux, uy, uz, hx, hy, hz, pw / nq,
-                    px / nq, py / nq, pz / nq, coef[C_MAG_WEIGHT], coef[C_GN_TOL],
-                    int(coef[C_GN_MAX_IT]),
-                )
-                if gn_ok:
-                    if gw * pw + gx * px + gy * py + gz * pz < 0.0:
-                        gw, gx, gy, gz = -gw, -gx, -gy, -gz  # sign nearest q⁻
-                    meas = (gw, gx, gy, gz)
-                    var = coef[C_QUAT_VAR] / h
-                    for k in range(4):  # H = I on the quaternion: one component each
-                        if ok:
-                            ok = scalar_update(row, E_X, p, n, ph, 3 + k, -1, 0.0, 0.0, 0.0,
-                                               0.0, meas[k] - x[3 + k], var)
-                else:
-                    flag = SOLVER_FAILED
-            else:  # the gravity and field readings, linearised at the prediction
-                za, ja = vector_reading(pw, px, py, pz, ux, uy, uz)
-                zm, jm = vector_reading(pw, px, py, pz, hx, hy, hz)
-                if ok:
-                    ok = _update_vector(row, n, za, ja, ax, ay, az,
-                                        coef[C_ACC_VAR] / h / coef[C_GRAVITY2], pw, px, py, pz)
-                if ok:
-                    ok = _update_vector(row, n, zm, jm, mx, my, mz, coef[C_MAG_VAR] / h,
-                                        pw, px, py, pz)
+        elif flag == OK and approach == 2.0:
+            var = coef[C_QUAT_VAR] * ih  # H = I on the quaternion: one component each
+            ok = ok and _unit_update(row, n, 3, gw - row[X + 3], var)
+            ok = ok and _unit_update(row, n, 4, gx - row[X + 4], var)
+            ok = ok and _unit_update(row, n, 5, gy - row[X + 5], var)
+            ok = ok and _unit_update(row, n, 6, gz - row[X + 6], var)
+        elif flag == OK:  # approach 1: the gravity and field readings, linearised at q⁻
+            za, ja = vector_reading(pw, px, py, pz, ux, uy, uz)
+            zm, jm = vector_reading(pw, px, py, pz, hx, hy, hz)
+            if ok:
+                ok = _update_vector(row, n, za, ja, ax, ay, az,
+                                    coef[C_ACC_VAR] / h / coef[C_GRAVITY2], pw, px, py, pz)
+            if ok:
+                ok = _update_vector(row, n, zm, jm, mx, my, mz, coef[C_MAG_VAR] / h,
+                                    pw, px, py, pz)
         mirror(row, p, n)
         if not ok:
             flag = NOT_PD
-        nq = math.sqrt(x[3] ** 2 + x[4] ** 2 + x[5] ** 2 + x[6] ** 2)
+        nq = math.sqrt(row[X + 3] ** 2 + row[X + 4] ** 2 + row[X + 5] ** 2 + row[X + 6] ** 2)
         if not (nq > 0.0 and nq < math.inf):  # undo: keep the predicted attitude
             flag = NOT_PD
-            x[3], x[4], x[5], x[6] = pw, px, py, pz
-            nq = math.sqrt(x[3] ** 2 + x[4] ** 2 + x[5] ** 2 + x[6] ** 2)
+            row[X + 3], row[X + 4], row[X + 5], row[X + 6] = pw, px, py, pz
+            nq = math.sqrt(pw ** 2 + px ** 2 + py ** 2 + pz ** 2)
+        inq = 1.0 / nq
         for k in range(3, 7):  # normalise after the update (001 Fig. 3)
-            x[k] /= nq
-    nq = math.sqrt(x[3] ** 2 + x[4] ** 2 + x[5] ** 2 + x[6] ** 2)
+            row[X + k] *= inq
+    inq = 1.0 / math.sqrt(row[X + 3] ** 2 + row[X + 4] ** 2 + row[X + 5] ** 2 + row[X + 6] ** 2)
     for k in range(4):
-        q_out[k] = x[3 + k] / nq
+        q_out[k] = row[X + 3 + k] * inq
     if n > 7:
         _bias_outputs(row, n, nx, ny, nz)
     _outputs(row, x_out, iterations, flag, nx, ny, nz, n)
