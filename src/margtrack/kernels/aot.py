@@ -121,14 +121,11 @@ def _numba_spec(numba_type: Any) -> ArgSpec | None:
 
 def _cpu() -> str:
     """This CPU, as far as builds for ``host`` depend on it."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith(("model name", "flags")):
-                    return hashlib.sha256(line.encode()).hexdigest()[:16] + platform.machine()
-    except OSError:
-        pass
-    return f"{platform.machine()} {platform.processor()}"
+    with contextlib.suppress(OSError), open("/proc/cpuinfo", encoding="utf-8") as f:
+        for line in f:
+            if line.startswith("model name"):
+                return hashlib.sha256(line.encode()).hexdigest()[:16] + platform.machine()
+    return f"{platform.machine()} {platform.processor()}"  # no /proc (macOS, Windows)
 
 
 def _numba_version() -> str:
