@@ -13,6 +13,9 @@ from margtrack.filters.gyro import GyroIntegration
 from margtrack.recording import Recording
 from margtrack.units import UnitError
 
+#: methods with update(); robust-offline refuses it (tests/filters/test_robust_offline.py)
+ONLINE = [n for n in methods.available() if not getattr(methods.get(n), "offline", False)]
+
 pytestmark = pytest.mark.kernel
 
 
@@ -165,10 +168,8 @@ def test_run_arrays_in_deg_s_and_g_with_declared_units():
         GyroIntegration().run(gyr=np.degrees(gyr), acc=acc, mag=mag, rate_hz=50.0)
 
 
-@pytest.mark.parametrize("name", methods.available())
+@pytest.mark.parametrize("name", ONLINE)
 def test_update_n_times_equals_run_once(name):
-    if getattr(methods.get(name), "offline", False):
-        pytest.skip(f"{name} is offline: update() refuses and a run starts afresh (no resume)")
     gyr, acc, mag = _signals()
     batch = methods.create(name).run(gyr=gyr, acc=acc, mag=mag, rate_hz=100.0)
     live = methods.create(name, rate_hz=100.0)
@@ -176,10 +177,8 @@ def test_update_n_times_equals_run_once(name):
     np.testing.assert_allclose(stepped, batch.quat, atol=1e-12)
 
 
-@pytest.mark.parametrize("name", methods.available())
+@pytest.mark.parametrize("name", ONLINE)
 def test_two_half_runs_joined_through_state_equal_one_run(name):
-    if getattr(methods.get(name), "offline", False):
-        pytest.skip(f"{name} is offline: update() refuses and a run starts afresh (no resume)")
     gyr, acc, mag = _signals()
     t = np.cumsum(np.full(len(acc), 0.01)) + 5.0
     whole = methods.create(name).run(gyr=gyr, acc=acc, mag=mag, t=t)
