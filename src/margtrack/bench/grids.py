@@ -63,6 +63,9 @@ GRIDS: Mapping[str, Mapping[str, GridParam]] = {
         "mag_norm_tol": GridParam(
             (0.15, 0.25, 0.4), "the screening's field-norm gate, most of its gain on BROAD"
         ),
+        "mag_disturbance_s": GridParam(
+            (0.3, 1.0, 3.0), "correlation time of field disturbances in the quaternion's noise"
+        ),
     },
     "bias-kf": {
         "acc_motion_fraction": GridParam(

@@ -25,6 +25,22 @@ construction, with algebra hand-derived for the sparse F and H
 ``[ω, q, b]`` with the gyroscope measuring ``ω + b`` and b a random walk, in the spirit of
 003's augmented state (:mod:`margtrack.kernels.ekf_bias`).
 
+Measurement noise that follows the evidence (:mod:`margtrack.kernels.ekf_noise`): 001
+gives the Gauss-Newton quaternion a fixed noise; with ``mag_disturbance_s`` (on by
+default, 1 s) and ``acc_disturbance_s`` (off) a sample's field distance from its reference
+norm and the accelerometer's distance from gravity's norm are disturbances of the unit
+vectors with that correlation time, carried through the fit's Jacobian into the
+quaternion's covariance (no threshold). ``mag_disturbance_s=0`` (and
+``acc_disturbance_s=0``) is the filter as printed, to the bit. On BROAD (16 trials,
+leave-one-trial-out over the declared grid, :mod:`margtrack.bench.grids`): the field's
+evidence takes the cross-validated mean from 4.28 deg (as printed) to 3.34 (heading 2.74
+to 2.08, inclination 2.92 to 2.48), below tuned Madgwick's 3.64 (``gradient``, same
+run). The accelerometer's makes it worse at every correlation time tried (0.003-1 s:
+4.13-4.39 deg in-sample against 3.91 as printed; 3.87-4.04 cross-validated on top of the
+field's, never chosen when 0 is a candidate): the model's integration of the rate state
+needs the quaternion's pull during motion, so that option stays off (a simulated shake on
+a still sensor does tilt it less).
+
 Two properties of the model as 001 writes it:
 
 - the gyroscope measures the rate *state*, the rate at the sample time, while the
@@ -46,14 +62,13 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from margtrack import frames
-from margtrack.estimator import Estimate, Params, param
+from margtrack.estimator import Estimate
 from margtrack.estimator.compiled import CompiledEstimator, CompiledState
 from margtrack.estimators.prefilter import dip_rad_or_nan
 from margtrack.filters._rest_null import (
@@ -62,7 +77,7 @@ from margtrack.filters._rest_null import (
     rest_null_layout,
     with_output_types,
 )
-from margtrack.frames import STANDARD_GRAVITY_M_S2
+from margtrack.filters.ekf_params import MarinsEkfParams
 from margtrack.kernels import contract as kc
 from margtrack.kernels import ekf as kernel
 from margtrack.kernels import ekf_bias as bias_kernel
@@ -70,185 +85,8 @@ from margtrack.kernels import rest_null as rest_null_kernel
 from margtrack.kernels.davenport import field_from_dip
 
 Array = NDArray[np.float64]
-PerAxis = float | tuple[float, float, float]
 
 __all__ = ["MarinsEkf", "MarinsEkfParams", "initial_covariance"]
-
-_PER_AXIS = (
-    "tau_s", "rate_noise_rad_s_sqrt_hz", "gyr_noise_rad_s_sqrt_hz", "gyr_bias_walk_rad_s_sqrt_s"
-)
-
-
-@dataclass(frozen=True)
-class MarinsEkfParams(Params):
-    """Parameters of Marins' EKF: the process model, noise densities and the fit.
-
-    Noise is given as white-noise densities, so one set works at any sample rate: a
-    sample's measurement variance is ``density² / dt``. Only ratios matter to the gains:
-    raising ``quat_noise_per_sqrt_hz`` (or the acc/mag noise for approach 1) makes the
-    filter trust the gyroscope longer; raising ``rate_noise_rad_s_sqrt_hz`` lets the rate
-    state follow the gyroscope more closely.
-
-    Defaults: the one set for all 16 BROAD trials (286 Hz) that
-    :func:`margtrack.bench.tune.tune` found best. τ and the driving noise follow 001's rule
-    (match the spectrum of the rates of normal motion): BROAD's gyroscope signals have a
-    correlation time of about 0.3 s (lag 0.1 s) and an rms of 1.85 rad/s, so
-    ``τ = 0.3`` s and ``σ = 1.85 √(2τ) ≈ 1.4`` rad/s/√Hz (τ in {0.15, 0.3, 0.6} s with σ
-    in {0.7, 1.4, 2.8} confirmed it). Tuned on that (approach 2, gyro null from each
-    trial's still start): ``quat_noise_per_sqrt_hz`` in {0.022, ..., 0.22},
-    ``gyr_noise_rad_s_sqrt_hz`` in {3e-4, 1e-3}, ``mag_weight`` in {0.8, 1}: mean total
-    RMSE 4.65 deg (heading 2.63, inclination 3.53); ahrs's Madgwick with one tuned β:
-    4.88 deg. Without the null (``gyr_null_rest_s=0``) the best was 5.70 deg at
-    ``quat_noise_per_sqrt_hz = 0.022``: a gyro bias is signal to this model, so it needs a
-    stronger pull to the measured quaternion. Approach 1's ``acc_noise_m_s2_sqrt_hz`` was
-    tuned with the same process parameters (grid {0.14, 0.3, 0.5}), its relative
-    magnetometer noise under the input screening (grid {0.0075, 0.011, 0.015, 0.02,
-    0.025, 0.034, 0.07}): 4.26 deg (5.30 with the former 1.5 µT/√Hz, i.e. 0.034 in
-    BROAD's 44 µT field, before the field's unit was taken out).
-
-    approach : 2 (001's choice: gyro + Gauss-Newton quaternion, ``H = I``) or 1 (the nine
-        nonlinear outputs).
-    tau_s : τ, time constant of the first-order rate model (001 eqs. 9-11), s; a number or
-        one per body axis. The rate decays towards 0 with it between samples.
-    rate_noise_rad_s_sqrt_hz : density of the white noise ``w_r`` driving the rate model
-        (001 Fig. 1, ``ω̇ = (-ω + w_r)/τ``), rad/s/√Hz; a number or one per axis. The
-        rate's stationary std is ``density / √(2τ)``.
-    gyr_noise_rad_s_sqrt_hz : gyroscope measurement noise density, rad/s/√Hz; a number or
-        one per axis.
-    quat_noise_per_sqrt_hz : noise density of each component of the Gauss-Newton
-        quaternion (approach 2), 1/√Hz (the quaternion is dimensionless; a component error
-        ε is a rotation of about 2ε rad). The paper's additive 4-D form, ``R = r I₄``.
-        While the field is unusable the gravity direction alone is used, with twice the
-        angular noise (see :mod:`margtrack.kernels.ekf`).
-    acc_noise_m_s2_sqrt_hz : accelerometer noise density (approach 1), m/s²/√Hz; divided
-        by ``gravity_m_s2`` for the unit gravity direction. Linear acceleration belongs
-        in it.
-    mag_noise_rel_sqrt_hz : magnetometer noise density (approach 1) relative to the field
-        norm, 1/√Hz: the unit field direction's noise, so the results do not depend on
-        the field's unit (0.02: 0.9 µT/√Hz in BROAD's 44 µT field).
-    mag_weight : ρ, weight of the magnetic residual in the Gauss-Newton fit (000 eq. 17);
-        1 is 001's equal weighting, lower lets the field pull less on inclination.
-    gn_tolerance : Gauss-Newton stopping criterion on Q = |ε_g|² + ρ²|ε_m|² or its change
-        over an update (dimensionless, unit vectors); default 1e-14, a residual of 1e-7
-        (with the 1e-10 of ``gauss-newton`` the measured quaternion of ideal data stops
-        ~5e-6 from the truth, which the filter then inherits).
-    gn_max_iterations : cap on Gauss-Newton updates per sample. The fit starts from the
-        prediction; on real data (inconsistent vectors) it converges only linearly, so the
-        cap, not the tolerance, usually ends it.
-    mag_dip_ref_deg (shared) : magnetic dip of the reference field, deg, positive down;
-        the same number is the screening's reference dip. None (default): measured from
-        each sensor's first valid sample and kept across restarts.
-    gravity_m_s2 : gravity magnitude for approach 1's accelerometer noise, m/s².
-    init_rate_std_rad_s : initial rate uncertainty per axis, rad/s (also after a restart).
-    init_quat_std : initial uncertainty of each quaternion component (also after a
-        restart: the covariance of the attitude is not kept over a gap).
-    gyr_null_rest_s : the gyro null point is the mean rate over the still period that
-        starts the recording, if it lasts at least this long, s; 0: raw gyro. 001's rate
-        model has no bias state: a bias enters the measured rate as signal (see
-        :mod:`margtrack.filters._rest_null`; 000 Appendix B step 1 calibrates the null the
-        same way). A restart keeps it.
-    bias_states : False (default): 001's 7-state filter as printed. True: the state is
-        ``[ω, q, b]`` (10), the gyroscope measures ``ω + b``, b a random walk (003's
-        augmented state; :mod:`margtrack.kernels.ekf_bias`); b is what is left after the
-        null, and the output ``gyr_bias_rad_s`` is null + b.
-    gyr_bias_walk_rad_s_sqrt_s : density of b's random walk, rad/s/√s (= rad/s²/√Hz); a
-        number or one per axis. Raising it lets the bias estimate follow faster and
-        noisier.
-    init_bias_std_rad_s : b's initial standard deviation per axis, rad/s (the first start
-        sets b = 0; a restart keeps b and its covariance). The defaults of the two suit an
-        unknown bias of up to about 1 deg/s (a simulated 1 deg/s bias is learned to 0.1
-        deg/s in 2 min of motion). On BROAD (16 trials, leave-one-trial-out over walk
-        {1e-6, 1e-5}, init {0.0005, 0.002}, quat noise {0.15, 0.3, 0.6}) the option
-        scores 4.67 deg cross-validated (in-sample best 4.15: walk 1e-6, init 0.0005,
-        quat noise 0.15) against 4.31 without it (quat noise {0.04, 0.075, 0.15});
-        without the still-start null 5.94 against 5.27: BROAD's biases are small and
-        the bias state takes up disturbances, so it stays off by default.
-    """
-
-    approach: int = param(
-        2, ge=1, le=2, help="2: gyro + Gauss-Newton quaternion (H = I); 1: nine vector outputs"
-    )
-    tau_s: PerAxis = param(
-        0.3, unit="s", gt=0, help="time constant of the rate model (one number or x, y, z)"
-    )
-    rate_noise_rad_s_sqrt_hz: PerAxis = param(
-        1.4, unit="rad/s/√Hz", gt=0, help="density of the noise driving the rate model"
-    )
-    gyr_noise_rad_s_sqrt_hz: PerAxis = param(
-        3e-4, unit="rad/s/√Hz", gt=0, help="gyroscope measurement noise density"
-    )
-    quat_noise_per_sqrt_hz: float = param(
-        0.075,
-        unit="1/√Hz",
-        gt=0,
-        help="noise density of each Gauss-Newton quaternion component (approach 2)",
-    )
-    acc_noise_m_s2_sqrt_hz: float = param(
-        0.3, unit="m/s²/√Hz", gt=0, help="accelerometer noise density (approach 1)"
-    )
-    mag_noise_rel_sqrt_hz: float = param(
-        0.02,
-        unit="1/√Hz",
-        gt=0,
-        help="magnetometer noise density relative to the field norm (approach 1)",
-    )
-    mag_weight: float = param(
-        1.0, gt=0, help="weight rho of the magnetic residual in the Gauss-Newton fit"
-    )
-    gn_tolerance: float = param(
-        1e-14, ge=0, help="Gauss-Newton stops when the criterion or its change is below this"
-    )
-    gn_max_iterations: int = param(
-        2, ge=1, le=1000, help="cap on Gauss-Newton updates per sample"
-    )
-    gravity_m_s2: float = param(
-        STANDARD_GRAVITY_M_S2, unit="m/s²", gt=0, help="gravity for approach 1's acc noise"
-    )
-    init_rate_std_rad_s: float = param(
-        1.0, unit="rad/s", gt=0, help="initial rate uncertainty per axis (and after restarts)"
-    )
-    init_quat_std: float = param(
-        0.5, gt=0, le=2, help="initial uncertainty of each quaternion component"
-    )
-    gyr_null_rest_s: float = param(
-        1.0,
-        unit="s",
-        ge=0,
-        help="gyro null from a still start at least this long (0: raw gyro); kept on restarts",
-    )
-    bias_states: bool = param(
-        False, help="add a gyro bias state b (the gyro measures rate + b; 003's augmented state)"
-    )
-    gyr_bias_walk_rad_s_sqrt_s: PerAxis = param(
-        1e-4,
-        unit="rad/s/√s",
-        ge=0,
-        help="random-walk density of the gyro bias state (bias_states; one number or x, y, z)",
-        calibrated_by="noise.gyr_bias_walk_rad_s2_sqrt_hz",
-    )
-    init_bias_std_rad_s: float = param(
-        0.01,
-        unit="rad/s",
-        gt=0,
-        help="initial uncertainty of the gyro bias state per axis (bias_states; kept on restarts)",
-    )
-
-    def check(self) -> None:
-        """Per-axis parameters: one number or three."""
-        super().check()
-        for name in _PER_AXIS:
-            value = getattr(self, name)
-            if isinstance(value, tuple) and len(value) != 3:
-                raise ValueError(
-                    f"parameter {name} must be a number or three of them (one per body axis), "
-                    f"got {len(value)}"
-                )
-
-    def axis_values(self, name: str) -> Array:
-        """A per-axis parameter as a (3,) array."""
-        return np.ascontiguousarray(
-            np.broadcast_to(np.asarray(getattr(self, name), dtype=np.float64), (3,))
-        )
 
 
 def initial_covariance(n_sensors: int, rate_std_rad_s: float, quat_std: float) -> Array:
@@ -281,6 +119,7 @@ _LAYOUT: Mapping[str, tuple[int, int]] = {
     "cov": (kernel.E_P, 49),
     "dip_rad": (kernel.E_DIP, 1),
     "field_reference": (kernel.E_FIELD, 3),
+    "field_norm_reference": (kernel.E_MAG_NORM, 1),
     "gyr_bias_rad_s": (kernel.E_NULL + rest_null_kernel.RN_NULL, 3),
     **rest_null_layout(kernel.E_NULL),
 }
@@ -291,6 +130,7 @@ _BIAS_LAYOUT: Mapping[str, tuple[int, int]] = {
     "cov": (bias_kernel.E_P, 100),
     "dip_rad": (kernel.E_DIP, 1),
     "field_reference": (kernel.E_FIELD, 3),
+    "field_norm_reference": (kernel.E_MAG_NORM, 1),
     "gyr_null_rad_s": (kernel.E_NULL + rest_null_kernel.RN_NULL, 3),
     "gyr_bias_rad_s": (bias_kernel.E_BIAS, 3),
     "gyr_bias_sd_rad_s": (bias_kernel.E_BIAS_SD, 3),
@@ -343,12 +183,14 @@ class MarinsEkf(CompiledEstimator[MarinsEkfParams]):
     state ω; ``cov`` the 7x7 covariance of ``[ω (rad/s)², q]``, row-major; ``dip_rad`` the
     reference dip measured at the first valid sample (NaN until then, and when
     ``mag_dip_ref_deg`` is given); ``field_reference`` the unit field from it;
-    ``gyr_bias_rad_s`` the gyro null in use (the still start's mean rate; 0 without one)
-    and the rest null's progress (``rest_null_*``).
+    ``field_norm_reference`` the field norm the evidence-driven noise measures against
+    (``mag_disturbance_s``; 0 until the first usable field); ``gyr_bias_rad_s`` the gyro
+    null in use (the still start's mean rate; 0 without one) and the rest null's progress
+    (``rest_null_*``).
 
-    A restart after a gap keeps the dip and the gyro null and starts the rate, the
-    quaternion and the whole covariance afresh (``init_*``): the new start is TRIAD's, not
-    the old estimate's.
+    A restart after a gap keeps the dip, the field norm reference and the gyro null and
+    starts the rate, the quaternion and the whole covariance afresh (``init_*``): the new
+    start is TRIAD's, not the old estimate's.
 
     With ``bias_states=True`` (kernel :mod:`margtrack.kernels.ekf_bias`) the state is
     ``[ω, q, b]``: ``cov_diag`` (N, 10) and ``cov`` (S, 100) cover b too, the outputs add
@@ -414,6 +256,8 @@ class MarinsEkf(CompiledEstimator[MarinsEkfParams]):
         walk = p.axis_values("gyr_bias_walk_rad_s_sqrt_s")
         c[kernel.C_BIAS_WALK_VAR : kernel.C_BIAS_WALK_VAR + 3] = walk**2
         c[kernel.C_INIT_BIAS_VAR] = p.init_bias_std_rad_s**2
+        c[kernel.C_ACC_DIST_S] = p.acc_disturbance_s
+        c[kernel.C_MAG_DIST_S] = p.mag_disturbance_s
         return c
 
     @CompiledEstimator.state.setter  # type: ignore[attr-defined]

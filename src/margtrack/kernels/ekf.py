@@ -41,6 +41,12 @@ Measurements:
   earth; a body-frame reading of an earth vector is ``Rᵀ h`` (with eq. 6's ``R`` and eq.
   20's ``M`` mapping body to earth), so the ``cd`` and ``bd`` terms change sign here.
 
+With ``acc_disturbance_s`` or ``mag_disturbance_s`` above 0 (the field's is on by
+default; both 0: 001's fixed noise, and this step as printed) the measurement noise
+follows the sample's evidence: the accelerometer's distance from gravity's norm and the
+field's from its reference norm, carried through the Gauss-Newton fit's Jacobian into the
+quaternion's covariance (:mod:`margtrack.kernels.ekf_noise`).
+
 The measurement noise is diagonal, so the update is applied one measured component at a
 time (:func:`margtrack.kernels.ekf_model.scalar_update`: equal to the batch update in
 exact arithmetic, the vector rows linearised at the prediction; symmetric and positive
@@ -77,7 +83,8 @@ defined there and re-exported here). Row layout after the
 contract's slots (offsets ``E_*``, the same for both sizes up to ``E_X``):
 
 - ``E_DIP`` the dip measured at the sensor's first valid sample, rad (NaN: not yet, or
-  given); ``E_FIELD`` (3) the unit field reference from it;
+  given); ``E_FIELD`` (3) the unit field reference from it; ``E_MAG_NORM`` the field's
+  reference norm of the evidence-driven noise (``mag_disturbance_s``; 0: none yet);
 - ``E_NULL`` (``rest_null.N_REST_NULL``) the gyro null from the still start;
 - ``E_DT``, ``E_GEN``, ``E_K`` (18): the interval-dependent constants (per axis ``a``,
   ``c``, Var Δω, Cov(Δφ, Δω), Var Δφ, the bias increment's variance) of the interval
@@ -89,11 +96,12 @@ contract's slots (offsets ``E_*``, the same for both sizes up to ``E_X``):
   covariance (n²), row-major, both triangles; the scratch ``P h`` of an update (n, not
   state); with the bias: the gyro bias of the raw rate (null + b, 3) and its sd (3).
 
-A restart keeps ``E_DIP``, ``E_FIELD`` and ``E_NULL`` (what is known of the sensor) and,
-with the bias, ``b`` and its covariance block; it starts the rest afresh. Extra outputs
-per sample (``x_out``, offsets :func:`out_offsets`): the rate state (3), the covariance
-diagonal (n), the Gauss-Newton iterations, the ``degenerate`` code, the gyro null (3)
-and, with the bias, the bias of the raw rate (3) and its sd (3). Coefficients: ``C_*``.
+A restart keeps ``E_DIP``, ``E_FIELD``, ``E_MAG_NORM`` and ``E_NULL`` (what is known of the
+sensor) and, with the bias, ``b`` and its covariance block; it starts the rest afresh.
+Extra outputs per sample (``x_out``, offsets :func:`out_offsets`): the rate state (3), the
+covariance diagonal (n), the Gauss-Newton iterations, the ``degenerate`` code, the gyro
+null (3) and, with the bias, the bias of the raw rate (3) and its sd (3). Coefficients:
+``C_*``.
 """
 
 from __future__ import annotations
@@ -107,6 +115,7 @@ from margtrack.kernels.ekf_model import (
     vector_measurement,
 )
 from margtrack.kernels.ekf_step import (
+    C_ACC_DIST_S,
     C_ACC_VAR,
     C_APPROACH,
     C_BIAS_WALK_VAR,
@@ -120,6 +129,7 @@ from margtrack.kernels.ekf_step import (
     C_INIT_BIAS_VAR,
     C_INIT_QUAT_VAR,
     C_INIT_RATE_VAR,
+    C_MAG_DIST_S,
     C_MAG_VAR,
     C_MAG_WEIGHT,
     C_NORTH,
@@ -133,6 +143,7 @@ from margtrack.kernels.ekf_step import (
     E_FIELD,
     E_GEN,
     E_K,
+    E_MAG_NORM,
     E_NULL,
     E_P,
     E_PH,
@@ -165,6 +176,7 @@ from margtrack.kernels.triad import (
 )
 
 __all__ = [
+    "C_ACC_DIST_S",
     "C_ACC_VAR",
     "C_APPROACH",
     "C_BIAS_WALK_VAR",
@@ -178,6 +190,7 @@ __all__ = [
     "C_INIT_BIAS_VAR",
     "C_INIT_QUAT_VAR",
     "C_INIT_RATE_VAR",
+    "C_MAG_DIST_S",
     "C_MAG_VAR",
     "C_MAG_WEIGHT",
     "C_NORTH",
@@ -191,6 +204,7 @@ __all__ = [
     "E_FIELD",
     "E_GEN",
     "E_K",
+    "E_MAG_NORM",
     "E_NULL",
     "E_P",
     "E_PH",

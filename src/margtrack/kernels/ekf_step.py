@@ -21,8 +21,9 @@ from margtrack.kernels.ekf_model import (
     transition_terms,
     vector_reading,
 )
+from margtrack.kernels.ekf_noise import disturbance_share, quaternion_update, rotation_covariance
 from margtrack.kernels.jit import njit
-from margtrack.kernels.screen import ACC_IGNORED, MAG_IGNORED
+from margtrack.kernels.screen import ACC_IGNORED, MAG_IGNORED, REF_TAU_S
 from margtrack.kernels.triad import (
     OK,
     SOLVER_FAILED,
@@ -65,12 +66,15 @@ C_GEN = 29  # generation of these coefficients (keys the row's interval constant
 C_NULL = 30  # rest_null.N_RC: the gyro null's coefficients
 C_BIAS_WALK_VAR = C_NULL + rest_null.N_RC  # 3: bias random-walk density², (rad/s)²/s
 C_INIT_BIAS_VAR = C_BIAS_WALK_VAR + 3  # (rad/s)²: the bias's initial variance per axis
-N_COEF = C_INIT_BIAS_VAR + 1
+C_ACC_DIST_S = C_INIT_BIAS_VAR + 1  # s: linear acceleration's correlation time (0: 001's noise)
+C_MAG_DIST_S = C_ACC_DIST_S + 1  # s: the field disturbance's correlation time (0: none)
+N_COEF = C_MAG_DIST_S + 1
 
 # -- one sensor's row (after the contract's slots; see the module docstring) -------------
 E_DIP = contract.N_CONTRACT  # measured dip, rad (NaN: not yet)
 E_FIELD = E_DIP + 1  # 3: unit field reference from it (NaN: not known)
-E_NULL = E_FIELD + 3  # rest_null.N_REST_NULL: the gyro null from the still start
+E_MAG_NORM = E_FIELD + 3  # the field's reference norm (mag_disturbance_s; 0: none yet)
+E_NULL = E_MAG_NORM + 1  # rest_null.N_REST_NULL: the gyro null from the still start
 E_DT = E_NULL + rest_null.N_REST_NULL  # interval of the constants below, s (NaN: none)
 E_GEN = E_DT + 1  # coefficient generation they were computed with
 E_K = E_GEN + 1  # 18: a, c, Var Δω, Cov(Δφ, Δω), Var Δφ, σ_b² h (3 each)
@@ -148,6 +152,7 @@ def start_n(row, coef, first, qw, qx, qy, qz, n):
     if first:
         row[E_DIP] = math.nan
         row[E_FIELD] = row[E_FIELD + 1] = row[E_FIELD + 2] = math.nan
+        row[E_MAG_NORM] = 0.0
         rest_null.fresh_one(row, E_NULL)
         for i in range(7, n):
             row[E_X + i] = 0.0
@@ -235,6 +240,19 @@ def _gyro_update(row, coef, n, rate, k, ih):
 
 
 @njit(cache=True, inline="always")
+def _field_share(row, coef, h, ih, norm):
+    """The field's disturbance share against the reference norm ``E_MAG_NORM``, which then
+    follows the field slowly (the screening's time constant, ``screen.REF_TAU_S``); the
+    first usable field sets it."""
+    ref = row[E_MAG_NORM]
+    if not ref > 0.0:
+        row[E_MAG_NORM] = norm
+        return 0.0
+    row[E_MAG_NORM] = ref - math.expm1(-h / REF_TAU_S) * (norm - ref)
+    return disturbance_share(norm, ref, coef[C_MAG_DIST_S], ih)
+
+
+@njit(cache=True, inline="always")
 def step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out, n):
     """One screened sample: predict over h (0: output the state as it is), update from the
     gyroscope and the accelerometer/magnetometer pair (module docstring); the flag bits."""
@@ -279,6 +297,15 @@ def step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
         flag = res[0]
         ax, ay, az, mx, my, mz = res[1], res[2], res[3], res[4], res[5], res[6]
         gw, gx, gy, gz = pw, px, py, pz
+        ih = 1.0 / h  # the measurement variances are density² / h
+        # the evidence-driven noise (kernels.ekf_noise): shares of the disturbances
+        s_a = s_m = 0.0
+        evidence = coef[C_ACC_DIST_S] > 0.0 or coef[C_MAG_DIST_S] > 0.0
+        if evidence:
+            s_a = disturbance_share(math.sqrt(a0 ** 2 + a1 ** 2 + a2 ** 2),
+                                    math.sqrt(coef[C_GRAVITY2]), coef[C_ACC_DIST_S], ih)
+            if coef[C_MAG_DIST_S] > 0.0 and flag == OK:
+                s_m = _field_share(row, coef, h, ih, math.sqrt(m0 ** 2 + m1 ** 2 + m2 ** 2))
         if flag == OK and approach == 2.0:  # the Gauss-Newton quaternion, from q⁻ alone
             inq = 1.0 / math.sqrt(pw ** 2 + px ** 2 + py ** 2 + pz ** 2)
             gn_ok, gw, gx, gy, gz, iterations = fit(
@@ -289,7 +316,6 @@ def step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
                 flag = SOLVER_FAILED
             elif gw * pw + gx * px + gy * py + gz * pz < 0.0:
                 gw, gx, gy, gz = -gw, -gx, -gy, -gz  # sign nearest q⁻
-        ih = 1.0 / h  # the measurement variances are density² / h
         # one call per component with its index a literal (loops over the index would
         # leave it a variable: masked and scattered row copies, stalls on every update)
         ok = _gyro_update(row, coef, n, gyr[0], 0, ih)
@@ -299,12 +325,19 @@ def step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
             na = math.sqrt(a0 ** 2 + a1 ** 2 + a2 ** 2)
             zv, jac = vector_reading(pw, px, py, pz, ux, uy, uz)
             if approach == 2.0:
-                var = 16.0 * coef[C_QUAT_VAR] / h
+                var = 16.0 * coef[C_QUAT_VAR] / h + s_a
             else:
-                var = coef[C_ACC_VAR] / h / coef[C_GRAVITY2]
+                var = coef[C_ACC_VAR] / h / coef[C_GRAVITY2] + s_a
             if ok:
                 ok = _update_vector(row, n, zv, jac, a0 / na, a1 / na, a2 / na, var,
                                     pw, px, py, pz)
+        elif flag == OK and approach == 2.0 and evidence:
+            okc, c00, c01, c02, c11, c12, c22 = rotation_covariance(
+                ax, ay, az, mx, my, mz, coef[C_MAG_WEIGHT], s_a, s_m)
+            if not okc:
+                c00 = c01 = c02 = c11 = c12 = c22 = 0.0
+            ok = ok and quaternion_update(row, X, p, n, offsets(n)[1], gw, gx, gy, gz,
+                                          coef[C_QUAT_VAR] * ih, c00, c01, c02, c11, c12, c22)
         elif flag == OK and approach == 2.0:
             var = coef[C_QUAT_VAR] * ih  # H = I on the quaternion: one component each
             ok = ok and _unit_update(row, n, 3, gw - row[X + 3], var)
@@ -316,9 +349,10 @@ def step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
             zm, jm = vector_reading(pw, px, py, pz, hx, hy, hz)
             if ok:
                 ok = _update_vector(row, n, za, ja, ax, ay, az,
-                                    coef[C_ACC_VAR] / h / coef[C_GRAVITY2], pw, px, py, pz)
+                                    coef[C_ACC_VAR] / h / coef[C_GRAVITY2] + s_a,
+                                    pw, px, py, pz)
             if ok:
-                ok = _update_vector(row, n, zm, jm, mx, my, mz, coef[C_MAG_VAR] / h,
+                ok = _update_vector(row, n, zm, jm, mx, my, mz, coef[C_MAG_VAR] / h + s_m,
                                     pw, px, py, pz)
         mirror(row, p, n)
         if not ok:
