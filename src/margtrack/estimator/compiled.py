@@ -25,6 +25,7 @@ from margtrack import quaternion as quat
 from margtrack.estimator import screening
 from margtrack.estimator.contract import Estimate, Estimator
 from margtrack.estimator.flags import first_problem
+from margtrack.estimator.outputs import Deferred, Outputs
 from margtrack.estimator.params import Params
 from margtrack.estimator.units import UnitProbe
 from margtrack.kernels import contract as kc
@@ -102,6 +103,11 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
     ``start`` and ``N_ROW``), ``state_layout`` (the method's named row slots), ``outputs_layout``
     (names and widths of the per-sample extra outputs) and implement
     :meth:`_coefficients` (the kernel's coefficient vector from the parameters).
+
+    A kernel module that also has ``N_LEAN`` and ``expand(coefs, q, kept, out)`` keeps only
+    ``N_LEAN`` values per sample in ``run``; ``expand`` computes the extra outputs from them
+    and the orientations when ``Estimate.outputs`` is first read
+    (:class:`~margtrack.estimator.outputs.Outputs`).
     """
 
     kernel: ClassVar[ModuleType]
@@ -277,8 +283,10 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
             )
         work = self._new_rows(n_sensors) if state is None else state.copy()
         width = sum(w for _, w in self.outputs_layout)
+        # a kernel with ``expand`` keeps N_LEAN values per sample, its outputs made on read
+        lean = getattr(self.kernel, "N_LEAN", 0)
         q = np.empty((n_sensors, n, 4))
-        extra = np.empty((n_sensors, n, max(width, 1)))
+        extra = np.empty((n_sensors, n, lean or max(width, 1)))
         flags = np.empty((n_sensors, n), dtype=np.uint16)
         has = (x.mag is not None) | (self._has_gyr_bit if x.gyr is not None else 0)
         # several sensors: shared among threads (compiled on first use of many sensors)
@@ -296,11 +304,16 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         self._state = work
         self._last_flags = flags[:, -1].copy()
         self._flag_one = None
-        outputs: dict[str, NDArray[Any]] = {}
-        offset = 0
-        for name, w in self.outputs_layout:
-            outputs[name] = extra[:, :, offset : offset + w]
-            offset += w
+        outputs: Mapping[str, NDArray[Any]]
+        if lean:
+            outputs = _deferred_outputs(self, q, extra)
+        else:
+            parts: dict[str, NDArray[Any]] = {}
+            offset = 0
+            for name, w in self.outputs_layout:
+                parts[name] = extra[:, :, offset : offset + w]
+                offset += w
+            outputs = parts
         return Estimate(
             quat=q,
             t=x.t.copy(),
@@ -310,6 +323,32 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
             outputs=outputs,
             flags=flags,
         )
+
+
+def _deferred_outputs(est: CompiledEstimator[Any], q: Array, kept: Array) -> Outputs:
+    """``outputs_layout``'s series, each computed on first read by ``kernel.expand`` from
+    the orientations q (S, N, 4) and what the kernel kept per sample (one expansion for
+    all of them)."""
+    kernel, coefs, layout = est.kernel, est._coefs.copy(), est.outputs_layout
+    width = sum(w for _, w in layout)
+    full: list[Array] = []
+
+    def expanded() -> Array:
+        if not full:
+            out = np.empty(q.shape[:2] + (width,))
+            kernel.expand(coefs, q, kept, out)
+            full.append(out)
+        return full[0]
+
+    def part(offset: int, w: int) -> Deferred:
+        return Deferred(lambda: expanded()[:, :, offset : offset + w])
+
+    values: dict[str, Array | Deferred] = {}
+    offset = 0
+    for name, w in layout:
+        values[name] = part(offset, w)
+        offset += w
+    return Outputs(values)
 
 
 def _read_only(arr: Array) -> Array:

@@ -35,6 +35,7 @@ from margtrack import frames
 from margtrack import quaternion as quat
 from margtrack.estimator import screening
 from margtrack.estimator.flags import Flag, first_problem
+from margtrack.estimator.outputs import Outputs
 from margtrack.estimator.params import Params
 from margtrack.estimator.units import UnitProbe, check_series_units
 from margtrack.kernels import triad as triad_kernel
@@ -98,7 +99,8 @@ class Estimate:
     method : registered method name.
     params : the parameters used, as a dict.
     outputs : further per-sample series with units in their names (for example
-        ``gyr_bias_rad_s`` (…, N, 3)).
+        ``gyr_bias_rad_s`` (…, N, 3)); a method may compute some only when first read
+        (:class:`~margtrack.estimator.outputs.Outputs`).
     flags : (N,) or (S, N) uint16 health flags (:class:`~margtrack.estimator.flags.Flag`).
     """
 
@@ -684,7 +686,11 @@ def _squeezed(est: Estimate) -> Estimate:
     return dataclasses.replace(
         est,
         quat=est.quat[0],
-        outputs={k: v[0] for k, v in est.outputs.items()},
+        outputs=(
+            est.outputs.mapped(lambda _, v: v[0])
+            if isinstance(est.outputs, Outputs)
+            else {k: v[0] for k, v in est.outputs.items()}
+        ),
         flags=None if est.flags is None else est.flags[0],
     )
 

@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from margtrack import frames
 from margtrack.estimator import Estimate, Params, param
 from margtrack.estimator.compiled import CompiledEstimator
+from margtrack.estimator.outputs import Outputs
 from margtrack.filters._async import LiveSensors, align_to_gyro
 from margtrack.frames import STANDARD_GRAVITY_M_S2
 from margtrack.kernels import gradient as kernel
@@ -132,7 +133,9 @@ class GradientParams(Params):
 class Gradient(LiveSensors, CompiledEstimator[GradientParams]):
     """Gradient-descent filter of 004, magnetometer forward component (``--method gradient``).
 
-    Outputs (``Estimate.outputs``, arrays (…, N, ...)):
+    Outputs (``Estimate.outputs``, arrays (…, N, ...); after ``run`` each is computed when
+    first read, from the output orientations and the screened accelerometer samples kept
+    by the kernel: the values the per-sample step computes, bit for bit):
 
     - ``euler_rad`` (…, N, 3): [yaw, pitch, roll] by 004's formulas, the ZYX angles of
       :func:`margtrack.quaternion.to_euler` (yaw and roll ill-defined at |pitch| = 90°).
@@ -224,7 +227,12 @@ class Gradient(LiveSensors, CompiledEstimator[GradientParams]):
 
     def _run_arrays(self, *args: Any, **kwargs: Any) -> Estimate:
         est = super()._run_arrays(*args, **kwargs)
-        # the kernel writes the ``ignored`` bits as a float column: back to int8 (S, N)
-        outputs: dict[str, NDArray[Any]] = dict(est.outputs)
-        outputs["ignored"] = outputs["ignored"][..., 0].astype(np.int8)
+        # computed on first read (``estimator.outputs``); the kernel keeps the ``ignored``
+        # bits as a float column: back to int8 (S, N)
+        outputs = Outputs(est.outputs).mapped(_ignored_int8)
         return dataclasses.replace(est, outputs=outputs)
+
+
+def _ignored_int8(name: str, value: NDArray[Any]) -> NDArray[Any]:
+    """The ``ignored`` column (…, N, 1) as int8 bits (…, N); other outputs as they are."""
+    return value[..., 0].astype(np.int8) if name == "ignored" else value

@@ -254,8 +254,10 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
     interval = int(coef[C_INTERVAL])
     cycle = int(row[B_CYCLE])
     row[B_CYCLE] = cycle + 1.0
-    phase = int(row[B_INDEX]) % interval if coef[C_ROUND_ROBIN] > 0.5 else 0
-    new = (cycle - phase) % interval == 0
+    new = True  # every sample with the default interval 1 (no integer division then)
+    if interval != 1:
+        phase = int(row[B_INDEX]) % interval if coef[C_ROUND_ROBIN] > 0.5 else 0
+        new = (cycle - phase) % interval == 0
     use_gyr = coef[C_USE_GYR] > 0.5
     if use_gyr:  # the gyro null from the still start (000 Appendix B step 1)
         nx, ny, nz = rest_null.step_one(

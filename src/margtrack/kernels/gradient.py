@@ -27,8 +27,14 @@ gravity component in the body m/s², ``X_LIN_ACC`` (3) the earth-frame linear ac
 m/s², ``X_IGNORED`` (1) the filter's ``ignored`` bits below (method detail; :func:`_step`
 returns them as ``Flag`` bits).
 
-Entry points: ``run``, ``update``, ``update_one``, ``start`` (``contract``'s templates with
-:func:`_start`, :func:`_step`, :func:`_hold`), and :func:`steps` (the step alone, for tests).
+``run`` and ``run_many`` keep per sample only what those outputs are computed from
+(``x_run``: ``L_ACC`` (3) the screened accelerometer sample, ``L_IGNORED`` the bits):
+:func:`expand` computes them with the same formulas from the output orientations, when
+they are read (``estimator.compiled``: ``Estimate.outputs`` is lazy).
+
+Entry points: ``run``, ``run_many``, ``update``, ``update_one``, ``start`` (``contract``'s
+templates with :func:`_start`, :func:`_step` (or :func:`_step_lean`), :func:`_hold`),
+:func:`expand`, and :func:`steps` (the step alone, for tests).
 """
 
 from __future__ import annotations
@@ -37,6 +43,8 @@ import math
 
 from margtrack.kernels import contract, screen
 from margtrack.kernels._quat import exp_half, mul
+from margtrack.kernels.gradient_objective import gradient_term, rotate, rotate_inverse
+from margtrack.kernels.gradient_objective import objective_jacobian as objective_jacobian
 from margtrack.kernels.jit import njit
 
 #: ``ignored`` flag bits: no accelerometer correction (zero vector, the screening's "no
@@ -72,106 +80,6 @@ FIELD_SAFE = (1e-150, 1e150)
 FORWARD_MIN = 1e-2
 
 
-@njit(cache=True, inline="always")
-def objective(w, x, y, z, dx, dy, dz, sx, sy, sz):
-    """f(q, d, s) = q* ⊗ d ⊗ q - s = rotate_inverse(q, d) - s (004 "General Optimization").
-
-    004's expanded f (after Madgwick) has two sign slips in the extracted text: the z terms
-    of row 2 read ``q1q2 - q3q4`` and the x terms of row 3 ``q1q3 - q2q4``; rotating by a
-    unit q gives ``q1q2 + q3q4`` and ``q1q3 + q2q4``, which is also what 004's own
-    Jacobian differentiates. Uses the unit-norm form ``1/2 - q3² - q4²`` as 004 does.
-    """
-    f1 = (
-        2.0 * dx * (0.5 - y * y - z * z)
-        + 2.0 * dy * (w * z + x * y)
-        + 2.0 * dz * (x * z - w * y)
-        - sx
-    )
-    f2 = (
-        2.0 * dx * (x * y - w * z)
-        + 2.0 * dy * (0.5 - x * x - z * z)
-        + 2.0 * dz * (w * x + y * z)
-        - sy
-    )
-    f3 = (
-        2.0 * dx * (w * y + x * z)
-        + 2.0 * dy * (y * z - w * x)
-        + 2.0 * dz * (0.5 - x * x - y * y)
-        - sz
-    )
-    return f1, f2, f3
-
-
-@njit(cache=True, inline="always")
-def jacobian(w, x, y, z, dx, dy, dz):
-    """J = ∂f/∂[q1, q2, q3, q4] (3 x 4, row-major 12-tuple) of :func:`objective`.
-
-    Derived from f; it equals 004's J except the last entry, which the extracted text
-    gives as ``2x_x q2 - 2x_y q3 - 3`` (OCR slip): ∂f3/∂q4 = ``2 d_x q2 + 2 d_y q3``.
-    """
-    return (
-        2.0 * dy * z - 2.0 * dz * y,
-        2.0 * dy * y + 2.0 * dz * z,
-        -4.0 * dx * y + 2.0 * dy * x - 2.0 * dz * w,
-        -4.0 * dx * z + 2.0 * dy * w + 2.0 * dz * x,
-        -2.0 * dx * z + 2.0 * dz * x,
-        2.0 * dx * y - 4.0 * dy * x + 2.0 * dz * w,
-        2.0 * dx * x + 2.0 * dz * z,
-        -2.0 * dx * w - 4.0 * dy * z + 2.0 * dz * y,
-        2.0 * dx * y - 2.0 * dy * x,
-        2.0 * dx * z - 2.0 * dy * w - 4.0 * dz * x,
-        2.0 * dx * w + 2.0 * dy * z - 4.0 * dz * y,
-        2.0 * dx * x + 2.0 * dy * y,
-    )
-
-
-@njit(cache=True, inline="always")
-def gradient_term(w, x, y, z, dx, dy, dz, sx, sy, sz):
-    """∇f = Jᵀ f (004 "General Optimization Algorithm") for one reference direction."""
-    f1, f2, f3 = objective(w, x, y, z, dx, dy, dz, sx, sy, sz)
-    j = jacobian(w, x, y, z, dx, dy, dz)
-    return (
-        j[0] * f1 + j[4] * f2 + j[8] * f3,
-        j[1] * f1 + j[5] * f2 + j[9] * f3,
-        j[2] * f1 + j[6] * f2 + j[10] * f3,
-        j[3] * f1 + j[7] * f2 + j[11] * f3,
-    )
-
-
-@njit(cache=True)
-def objective_jacobian(q, d, s, f_out, j_out):
-    """Array form of :func:`objective` and :func:`jacobian` for tests: f_out (3,), j_out (3, 4)."""
-    f = objective(q[0], q[1], q[2], q[3], d[0], d[1], d[2], s[0], s[1], s[2])
-    j = jacobian(q[0], q[1], q[2], q[3], d[0], d[1], d[2])
-    for r in range(3):
-        f_out[r] = f[r]
-        for c in range(4):
-            j_out[r, c] = j[4 * r + c]
-
-
-@njit(cache=True, inline="always")
-def _rotate(w, x, y, z, vx, vy, vz):
-    """rotate(q, v) = R(q) v (body to earth)."""
-    return (
-        (1.0 - 2.0 * (y * y + z * z)) * vx
-        + 2.0 * (x * y - w * z) * vy
-        + 2.0 * (x * z + w * y) * vz,
-        2.0 * (x * y + w * z) * vx
-        + (1.0 - 2.0 * (x * x + z * z)) * vy
-        + 2.0 * (y * z - w * x) * vz,
-        2.0 * (x * z - w * y) * vx
-        + 2.0 * (y * z + w * x) * vy
-        + (1.0 - 2.0 * (x * x + y * y)) * vz,
-    )
-
-
-@njit(cache=True, inline="always")
-def _rotate_inverse(w, x, y, z, vx, vy, vz):
-    """rotate_inverse(q, v) = R(q)ᵀ v (earth to body)."""
-    return _rotate(w, -x, -y, -z, vx, vy, vz)
-
-
-
 # -- row slots (after the contract's) ----------------------------------------------------
 G_Q = contract.N_CONTRACT  # 4: orientation, body to NWU
 G_MAG_REF = G_Q + 4  # 2: fixed field reference [b_x, b_z] (b_x = 0: none yet)
@@ -196,6 +104,11 @@ X_LIN_ACC = 6  # 3: linear acceleration, output frame, m/s²
 X_IGNORED = 9  # 1: ``ignored`` bits
 N_OUT = 10
 
+# -- what ``run`` keeps per sample instead (``x_run``; :func:`expand` makes the outputs) ----
+L_ACC = 0  # 3: the screened accelerometer sample the step used, m/s² (zeros: none)
+L_IGNORED = 3  # 1: ``ignored`` bits
+N_LEAN = 4
+
 
 @njit(cache=True, inline="always")
 def _outputs(coef, ow, ox, oy, oz, a0, a1, a2, x_out):
@@ -210,11 +123,11 @@ def _outputs(coef, ow, ox, oy, oz, a0, a1, a2, x_out):
     x_out[X_EULER + 1] = math.asin(min(1.0, max(-1.0, sp)))
     x_out[X_EULER + 2] = math.atan2(2.0 * (oy * oz + ox * ow), -xx - yy + zz + ww)
     # gravity component a_g in the body (points up) and a_m = R a - g up in the earth
-    gx, gy, gz = _rotate_inverse(ow, ox, oy, oz, ux, uy, uz)
+    gx, gy, gz = rotate_inverse(ow, ox, oy, oz, ux, uy, uz)
     x_out[X_GRAVITY] = g * gx
     x_out[X_GRAVITY + 1] = g * gy
     x_out[X_GRAVITY + 2] = g * gz
-    ex, ey, ez = _rotate(ow, ox, oy, oz, a0, a1, a2)
+    ex, ey, ez = rotate(ow, ox, oy, oz, a0, a1, a2)
     x_out[X_LIN_ACC] = ex - g * ux
     x_out[X_LIN_ACC + 1] = ey - g * uy
     x_out[X_LIN_ACC + 2] = ez - g * uz
@@ -230,14 +143,16 @@ def _start(row, coef, first, qw, qx, qy, qz):
 
 
 @njit(cache=True, inline="always")
-def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
-    """One screened sample: correction, propagation and fusion; returns ``Flag`` bits.
+def _advance(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out):
+    """One screened sample: correction, propagation and fusion; q_out (4,) the new output
+    orientation; returns the ``ignored`` bits (:func:`_step` returns them as ``Flag`` bits).
 
     rad/s, m/s², any field unit; an all-zero acc or field is "no measurement" (that
     correction is skipped); ``dt = 0`` integrates nothing and makes no correction step
-    (β dt = 0), so a no-op sample leaves the orientation as it was, renormalised. Returns
-    ``Flag.ACC_IGNORED`` for the filter's ACC_IGNORED and ``Flag.MAG_IGNORED`` for its
-    MAG_REJECTED (a zero field is the screening's sentinel, flagged there with its reason).
+    (β dt = 0), so a no-op sample leaves the orientation as it was, renormalised. As flags
+    the bits are ``Flag.ACC_IGNORED`` for the filter's ACC_IGNORED and ``Flag.MAG_IGNORED``
+    for its MAG_REJECTED (a zero field is the screening's sentinel, flagged there with its
+    reason).
 
     The recursion runs in NWU (x north, y west, z up), Madgwick's frame: the objective in
     its unit-norm form (``1/2 - q3² - q4²``) is not invariant under a change of earth frame
@@ -275,7 +190,7 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
                 # gravity component a_g, the filter's own estimate R(q)ᵀ up, or
                 # (FORWARD_MEASURED) the raw accelerometer â
                 if mode == FORWARD_ESTIMATED:
-                    vx, vy, vz = _rotate_inverse(w, x, y, z, 0.0, 0.0, 1.0)
+                    vx, vy, vz = rotate_inverse(w, x, y, z, 0.0, 0.0, 1.0)
                 else:
                     vx, vy, vz = ax, ay, az
                 p = mx * vx + my * vy + mz * vz
@@ -290,7 +205,7 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
                 # eqs. 45-46), or (FULL_FIXED) the first such b, kept
                 mx, my, mz = mx / nm, my / nm, mz / nm
                 if mode == FULL_ADAPTIVE or row[G_MAG_REF] <= 0.0:
-                    hx, hy, hz = _rotate(w, x, y, z, mx, my, mz)
+                    hx, hy, hz = rotate(w, x, y, z, mx, my, mz)
                     dx, dz = math.sqrt(hx * hx + hy * hy), hz
                     if mode == FULL_FIXED:
                         row[G_MAG_REF], row[G_MAG_REF + 1] = dx, dz
@@ -335,15 +250,39 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
     row[G_ACC_HELD], row[G_ACC_HELD + 1], row[G_ACC_HELD + 2] = a0, a1, a2
     if has_mag:
         row[G_MAG_HELD], row[G_MAG_HELD + 1], row[G_MAG_HELD + 2] = m0, m1, m2
-    # -- outputs in the output frame ---------------------------------------------------------
+    # -- the orientation in the output frame ---------------------------------------------------
     c = C_TO_FRAME
-    ow, ox, oy, oz = mul(coef[c], coef[c + 1], coef[c + 2], coef[c + 3], w, x, y, z)
-    q_out[0], q_out[1], q_out[2], q_out[3] = ow, ox, oy, oz
-    _outputs(coef, ow, ox, oy, oz, a0, a1, a2, x_out)
-    x_out[X_IGNORED] = bits
+    q_out[0], q_out[1], q_out[2], q_out[3] = mul(
+        coef[c], coef[c + 1], coef[c + 2], coef[c + 3], w, x, y, z
+    )
+    return bits
+
+
+@njit(cache=True, inline="always")
+def _flags(bits):
+    """``Flag`` bits of the filter's ``ignored`` bits (:func:`_step`)."""
     return (screen.ACC_IGNORED if bits & ACC_IGNORED else 0) | (
         screen.MAG_IGNORED if bits & MAG_REJECTED else 0
     )
+
+
+@njit(cache=True, inline="always")
+def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
+    """:func:`_advance` and the extra outputs of the new orientation (``update``)."""
+    bits = _advance(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out)
+    _outputs(coef, q_out[0], q_out[1], q_out[2], q_out[3], a0, a1, a2, x_out)
+    x_out[X_IGNORED] = bits
+    return _flags(bits)
+
+
+@njit(cache=True, inline="always")
+def _step_lean(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_run):
+    """:func:`_advance` keeping only what the extra outputs are computed from (``run``):
+    x_run (N_LEAN,) the screened accelerometer sample and the ``ignored`` bits."""
+    bits = _advance(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out)
+    x_run[L_ACC], x_run[L_ACC + 1], x_run[L_ACC + 2] = a0, a1, a2
+    x_run[L_IGNORED] = bits
+    return _flags(bits)
 
 
 @njit(cache=True, inline="always")
@@ -356,6 +295,29 @@ def _hold(row, coef, x_out):
 
 
 @njit(cache=True, inline="always")
+def _hold_lean(row, coef, x_run):
+    """:func:`_hold` for ``run``: no accelerometer sample, no ``ignored`` bits."""
+    for k in range(N_LEAN):
+        x_run[k] = 0.0
+
+
+@njit(cache=True)
+def expand(coefs, q, x_run, x_out):
+    """The extra outputs of a ``run``: x_out (S, N, N_OUT) from its orientations q (S, N, 4)
+    and x_run (S, N, N_LEAN), the same formulas on the same values as :func:`_step` and
+    :func:`_hold` (bit for bit): the hot loop keeps 4 values per sample instead of
+    computing 10 with two ``atan2`` and an ``asin``, and this runs only when they are read.
+    """
+    coef = coefs[contract.N_SCOEF :]
+    for s in range(q.shape[0]):
+        for i in range(q.shape[1]):
+            qi, li, xi = q[s, i], x_run[s, i], x_out[s, i]
+            _outputs(coef, qi[0], qi[1], qi[2], qi[3], li[L_ACC], li[L_ACC + 1], li[L_ACC + 2],
+                     xi)
+            xi[X_IGNORED] = li[L_IGNORED]
+
+
+@njit(cache=True, inline="always")
 def _has(coefs, has):
     """The ``has`` bits with a given field dropped when ``use_mag`` is off (then the
     screening does not judge it and a start levels on gravity alone)."""
@@ -364,16 +326,18 @@ def _has(coefs, has):
 
 @njit(cache=True)
 def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples (``contract.run_series``)."""
-    contract.run_series(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag,
+    """S sensors' N samples (``contract.run_series``); x_out (S, N, N_LEAN) for
+    :func:`expand`."""
+    contract.run_series(_start, _step_lean, _hold_lean, rows, clock, coefs, t, gyr, acc, mag,
                         _has(coefs, has), q_out, x_out, flags_out)
 
 
 @njit(cache=True, parallel=True)
 def run_many(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples, shared among threads (``contract.run_series_parallel``)."""
-    contract.run_series_parallel(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag,
-                                 _has(coefs, has), q_out, x_out, flags_out)
+    """S sensors' N samples, shared among threads (``contract.run_series_parallel``); x_out
+    (S, N, N_LEAN) for :func:`expand`."""
+    contract.run_series_parallel(_start, _step_lean, _hold_lean, rows, clock, coefs, t, gyr, acc,
+                                 mag, _has(coefs, has), q_out, x_out, flags_out)
 
 
 @njit(cache=True)

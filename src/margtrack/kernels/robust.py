@@ -45,10 +45,11 @@ One sensor's state is a flat row: the contract's slots, then these (offsets from
 ``R_CAND_NORM``    1      a new steady field's norm, candidate reference; kept
 ``R_CAND_DIP``     1      its dip, rad; kept
 ``R_CAND_S``       1      how long the candidate has been steady, s; kept
-``R_GAINS``        11     derived, not state: the interval (s) and the four time
-                          constants the gains were computed for, then k_rest, k_ref,
-                          k_mag and the Butterworth (b0, a1, a2); recomputed when the
-                          interval or a time constant changes
+``R_GAINS``        23     derived, not state: two slots of 11, each the interval (s)
+                          and the four time constants its gains were computed for, then
+                          k_rest, k_ref, k_mag and the Butterworth (b0, a1, a2); then
+                          the offset of the slot in use. An interval found in neither
+                          slot is computed into the other one (see :func:`_gains`)
 =================  =====  ==============================================================
 
 ``_step`` returns the flag bits ``REST`` and ``MAG_DISTURBED``; its extra outputs
@@ -116,9 +117,11 @@ R_CAND_NORM = R_MAG_DIP_REF + 1
 R_CAND_DIP = R_CAND_NORM + 1
 R_CAND_S = R_CAND_DIP + 1
 R_GAINS = R_CAND_S + 1
-# offsets within R_GAINS: the key (interval, time constants), then the gains
+# offsets within a slot of R_GAINS: the key (interval, time constants), then the gains
 G_DT, G_TAU_ACC, G_TAU_MAG, G_REST_TAU, G_REF_TAU, G_K_REST, G_K_REF, G_K_MAG, G_BW = range(9)
-N_ROW = R_GAINS + G_BW + 3  # (b0, a1, a2) last
+N_GAINS = G_BW + 3  # (b0, a1, a2) last
+R_GAINS_IN_USE = R_GAINS + 2 * N_GAINS  # offset of the slot in use (0 in a fresh row: the first)
+N_ROW = R_GAINS_IN_USE + 1
 
 # extra outputs (x_out)
 X_QUAT6 = 0
@@ -191,17 +194,33 @@ def _bw_hold(b0, a1, a2, x):
 
 
 @njit(cache=True, inline="always")
+def _gains_match(row, g, coef, step):
+    """Whether the gains of the slot at ``row[g:]`` were computed for this interval and
+    these time constants."""
+    return (
+        row[g + G_DT] == step
+        and row[g + G_TAU_ACC] == coef[C_TAU_ACC]
+        and row[g + G_TAU_MAG] == coef[C_TAU_MAG]
+        and row[g + G_REST_TAU] == coef[C_REST_TAU]
+        and row[g + G_REF_TAU] == coef[C_MAG_REF_TAU]
+    )
+
+
+@njit(cache=True, inline="always")
 def _gains(row, coef, step):
-    """The interval-dependent gains in ``row[R_GAINS:]``, recomputed when ``step`` or a
-    time constant differs from the ones they were computed for."""
-    g = R_GAINS
-    if (
-        row[g + G_DT] != step
-        or row[g + G_TAU_ACC] != coef[C_TAU_ACC]
-        or row[g + G_TAU_MAG] != coef[C_TAU_MAG]
-        or row[g + G_REST_TAU] != coef[C_REST_TAU]
-        or row[g + G_REF_TAU] != coef[C_MAG_REF_TAU]
-    ):
+    """The offset of the slot holding the gains for interval ``step``; computed (3 ``exp``,
+    a ``tan``) only when neither slot has them for this interval and the time constants.
+
+    Timestamps of a steady rate give intervals that differ in the last bits (``t = i /
+    rate`` has 2-3 distinct differences in turn; BROAD's clock 21): one slot recomputed
+    them at 40-65 % of the samples, two at 0.05 %. The values are those of a fresh
+    computation (the same function of the same numbers)."""
+    g = R_GAINS + (N_GAINS if row[R_GAINS_IN_USE] == N_GAINS else 0)  # any value: a slot
+    if _gains_match(row, g, coef, step):
+        return g
+    g = 2 * R_GAINS + N_GAINS - g  # the other slot
+    row[R_GAINS_IN_USE] = g - R_GAINS
+    if not _gains_match(row, g, coef, step):
         row[g + G_DT] = step
         row[g + G_TAU_ACC] = coef[C_TAU_ACC]
         row[g + G_TAU_MAG] = coef[C_TAU_MAG]
@@ -212,6 +231,7 @@ def _gains(row, coef, step):
         row[g + G_K_MAG] = _lowpass_gain(step, coef[C_TAU_MAG])
         b0, a1, a2 = butterworth_coefficients(step, coef[C_TAU_ACC])
         row[g + G_BW], row[g + G_BW + 1], row[g + G_BW + 2] = b0, a1, a2
+    return g
 
 
 @njit(cache=True, inline="always")
@@ -287,10 +307,11 @@ def _hold(row, coef, x_out):
 
 
 @njit(cache=True, inline="always")
-def _rest(row, coef, step, g0, g1, g2, a0, a1, a2, acc_ok):
+def _rest(row, coef, gains, step, g0, g1, g2, a0, a1, a2, acc_ok):
     """Rest detection (small deviation from slow means, small rate) and, at rest, the
-    bias update from the gyro's slow mean; returns whether at rest."""
-    k_rest = row[R_GAINS + G_K_REST]
+    bias update from the gyro's slow mean; returns whether at rest. ``gains``: the offset
+    of the interval's gains (:func:`_gains`)."""
+    k_rest = row[gains + G_K_REST]
     bias_max = coef[C_BIAS_MAX]
     gr0 = row[R_GYR_REST] + k_rest * (g0 - row[R_GYR_REST])
     gr1 = row[R_GYR_REST + 1] + k_rest * (g1 - row[R_GYR_REST + 1])
@@ -326,12 +347,12 @@ def _rest(row, coef, step, g0, g1, g2, a0, a1, a2, acc_ok):
 
 
 @njit(cache=True, inline="always")
-def _incline(row, coef, step, a0, a1, a2, rest):
+def _incline(row, coef, gains, step, a0, a1, a2, rest):
     """The low-passed accelerometer in I must point up: q_acc corrected by the shortest
     arc (004); in motion the applied correction rate is a bias measurement."""
     gw, gx, gy, gz = row[R_Q_GYR], row[R_Q_GYR + 1], row[R_Q_GYR + 2], row[R_Q_GYR + 3]
     cw, cx, cy, cz = row[R_Q_ACC], row[R_Q_ACC + 1], row[R_Q_ACC + 2], row[R_Q_ACC + 3]
-    bb0, ba1, ba2 = row[R_GAINS + G_BW], row[R_GAINS + G_BW + 1], row[R_GAINS + G_BW + 2]
+    bb0, ba1, ba2 = row[gains + G_BW], row[gains + G_BW + 1], row[gains + G_BW + 2]
     bw = R_ACC_LP_BW
     if row[R_LP_STAGE] == LP_FIRST:
         # start the low-pass steady at the first sample
@@ -377,9 +398,10 @@ def _incline(row, coef, step, a0, a1, a2, rest):
 
 
 @njit(cache=True, inline="always")
-def _heading(row, coef, step, q6w, q6x, q6y, q6z, m0, m1, m2):
+def _heading(row, coef, gains, step, q6w, q6x, q6y, q6z, m0, m1, m2):
     """Heading from the horizontal field (004's vector rejection), unless the field's norm
-    or dip disagrees with the tracked reference; returns whether it did (disturbed)."""
+    or dip disagrees with the tracked reference; returns whether it did (disturbed).
+    ``gains``: the offset of the interval's gains (:func:`_gains`; read only when step > 0)."""
     mx, my, mz = _rotate(q6w, q6x, q6y, q6z, m0, m1, m2)
     m_norm = math.sqrt(mx * mx + my * my + mz * mz)
     horizontal = math.sqrt(mx * mx + my * my)
@@ -400,7 +422,7 @@ def _heading(row, coef, step, q6w, q6x, q6y, q6z, m0, m1, m2):
             or abs(dip - ref_d) > coef[C_MAG_DIP_TOL]
         )
         if step > 0.0:
-            k_ref = row[R_GAINS + G_K_REF]
+            k_ref = row[gains + G_K_REF]
             if not disturbed:
                 row[R_MAG_NORM_REF] = ref_n + k_ref * (m_norm - ref_n)
                 row[R_MAG_DIP_REF] = ref_d + k_ref * (dip - ref_d)
@@ -411,7 +433,7 @@ def _heading(row, coef, step, q6w, q6x, q6y, q6z, m0, m1, m2):
                 # turns or rejected disturbances was measured worse on BROAD, re-acquiring
                 # still-distorted fields too quickly. Start-up: the mean of the
                 # measurements while 1/n is larger
-                k = row[R_GAINS + G_K_MAG]
+                k = row[gains + G_K_MAG]
                 if row[R_SINCE_START] < coef[C_CONVERGE]:
                     row[R_HEADING_N] += 1.0
                     k = max(k, 1.0 / row[R_HEADING_N])
@@ -463,8 +485,9 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
         row[R_LP_STAGE] = LP_FIRST
         acc_ok = False  # used: not filtered a second time below
     rest = False
+    gains = R_GAINS  # read only when dt > 0
     if dt > 0.0:
-        _gains(row, coef, dt)
+        gains = _gains(row, coef, dt)
         row[R_SINCE_START] += dt
         # -- strapdown: q_gyr ⊗ exp((ω - b) dt / 2); the bias walks between measurements
         b = R_BIAS
@@ -475,9 +498,9 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
         walk = coef[C_BIAS_WALK] ** 2 * dt
         for k in range(3):
             row[R_BIAS_VAR + k] += walk
-        rest = _rest(row, coef, dt, g0, g1, g2, a0, a1, a2, acc_ok)
+        rest = _rest(row, coef, gains, dt, g0, g1, g2, a0, a1, a2, acc_ok)
         if acc_ok:  # (an all-zero sample is no measurement: nothing reaches the low-pass)
-            _incline(row, coef, dt, a0, a1, a2, rest)
+            _incline(row, coef, gains, dt, a0, a1, a2, rest)
         bias_max = coef[C_BIAS_MAX]
         for k in range(3):
             row[R_BIAS + k] = min(max(row[R_BIAS + k], -bias_max), bias_max)
@@ -487,7 +510,7 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
                              row[g], row[g + 1], row[g + 2], row[g + 3])  # fmt: skip
     disturbed = False
     if has_mag:
-        disturbed = _heading(row, coef, dt, q6w, q6x, q6y, q6z, m0, m1, m2)
+        disturbed = _heading(row, coef, gains, dt, q6w, q6x, q6y, q6z, m0, m1, m2)
         half = 0.5 * row[R_HEADING]
         ow, ox, oy, oz = mul(math.cos(half), 0.0, 0.0, math.sin(half), q6w, q6x, q6y, q6z)
     else:
