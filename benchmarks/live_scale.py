@@ -3,9 +3,12 @@
 For each method (Bachmann's filter ``bachmann``, 000 Appendix A, and the default method,
 ``robust``), in one run on this machine:
 
-1. filter rates: ``Estimator.run`` on S = 3000 sensors x 10 samples (what the engine calls
-   per batch: validation, state copy, the compiled kernel) and the kernel's multi-sensor
-   entry alone (``kernel.run_many``, threads over sensors) on prepared arrays;
+1. filter rates on one batch as the engine runs it, S = 100000 sensors x 4 frames: the
+   kernel's multi-sensor entry alone (``kernel.run_many``, threads over sensors) on
+   prepared arrays, the engine's hot path (``CompiledEstimator.run_into``: reused buffers,
+   the state in place) and the public ``run`` (validation, input and state copies, new
+   outputs); whether the kernel call runs on both cores (the CPU time of the threads other
+   than the caller); the hot path's rate for batches of 1 to 16 frames;
 2. throughput: the engine fed as fast as it takes (an unpaced replay, 4 frames a batch,
    25 Hz display, every person's body model) at the largest S tried, in CPU and wall time:
    the sensors it could carry at 100 Hz if nothing else ran on the machine;
@@ -20,8 +23,8 @@ For each method (Bachmann's filter ``bachmann``, 000 Appendix A, and the default
    filters (the estimator's ``run`` and the per-sensor isolation around it), the body model
    (000 eqs. 7, 11 for every person at 25 Hz), publishing, and polling / assembling frames;
    with ``--profile``, a cProfile of an unpaced run at that S: its top entries and the
-   filters' time split into the kernel, the rest of ``run`` (validation, input and state
-   copies) and the live code around it.
+   filters' time split into the kernel, the rest of ``run_into`` (its O(1) checks) and the
+   live code around it (copies of inputs that are not contiguous, holds, counts).
 
 The machine is shared: the load average is printed beside every figure (2 cores here; a
 load above 2 means other processes took CPU from the engine and its figures are lower
@@ -44,6 +47,7 @@ import time
 import numpy as np
 
 from margtrack import methods
+from margtrack.estimator.compiled import PARALLEL_MIN_SAMPLES
 from margtrack.live.engine import Engine
 from margtrack.live.replay import ReplaySource
 from margtrack.live.simulator import PeopleSimulation
@@ -86,34 +90,78 @@ def tiled_source(base: tuple[np.ndarray, ...], n_people: int, speed: float = 1.0
                         chunk_frames=chunk_frames, description=f"{n_people} simulated people")
 
 
-def filter_rates(method: str, n_sensors: int = 3000, n: int = 10) -> tuple[float, float]:
-    """Samples/s of the kernel's multi-sensor entry alone and of ``run`` (S x n per call)."""
+def filter_rates(method: str, n_sensors: int = 100_000, n: int = 4) -> dict[str, float]:
+    """Samples/s of one batch as the engine runs it (S sensors x ``n`` frames a call).
+
+    ``kernel``: the kernel's entry alone on prepared arrays; ``run_into``: the engine's
+    hot path (:meth:`CompiledEstimator.run_into`: O(1) checks, reused buffers, the state in
+    place); ``run``: the public ``run`` (validation, input and state copies, new outputs);
+    ``other_threads``: the share of the hot path's CPU time spent outside the calling
+    thread (about 0.5 when both cores share the kernel, 0 when it runs on one);
+    ``cpu_per_wall``: CPU time over wall time of the hot path (2 on two free cores).
+    """
     rng = np.random.default_rng(0)
     gyr = rng.normal(0, 0.5, (n_sensors, n, 3))
     acc = rng.normal(0, 0.5, (n_sensors, n, 3)) + [0.0, 0.0, 9.81]
     mag = rng.normal(0, 0.5, (n_sensors, n, 3)) + [0.0, 25.0, -43.0]
-    t = np.arange(n) / RATE_HZ
     est = methods.create(method, params(method))
-    est.run(gyr=gyr, acc=acc, mag=mag, t=t, check_units=False)  # compile / load the cache
-    reps = 20
-    start = time.perf_counter()
-    for r in range(reps):
-        est.run(gyr=gyr, acc=acc, mag=mag, t=t + (r + 1) * n / RATE_HZ, check_units=False)
-    run_rate = reps * n_sensors * n / (time.perf_counter() - start)
-    state = est.state
     width = max(sum(w for _, w in est.outputs_layout), 1)
     q, x = np.empty((n_sensors, n, 4)), np.empty((n_sensors, n, width))
     flags = np.empty((n_sensors, n), dtype=np.uint16)
-    series = [t + (reps + r + 1) * n / RATE_HZ for r in range(reps + 1)]  # no gap
-    for a in (gyr, acc, mag, *series):  # as run() passes them: the same specialisation
-        a.flags.writeable = False
-    kernel = est.kernel.run_many
-    kernel(state.rows, state.clock, est._coefs, series[0], gyr, acc, mag, 3, q, x, flags)
+    reps = 10
+    series = iter([np.arange(n) / RATE_HZ + r * n / RATE_HZ for r in range(4 * reps + 4)])
+    est.run(gyr=gyr, acc=acc, mag=mag, t=next(series), check_units=False)  # compile / load
+    out = {}
     start = time.perf_counter()
-    for times in series[1:]:
-        kernel(state.rows, state.clock, est._coefs, times, gyr, acc, mag, 3, q, x, flags)
-    kernel_rate = reps * n_sensors * n / (time.perf_counter() - start)
-    return kernel_rate, run_rate
+    for _ in range(reps):
+        est.run(gyr=gyr, acc=acc, mag=mag, t=next(series), check_units=False)
+    out["run"] = reps * n_sensors * n / (time.perf_counter() - start)
+    est.run_into(next(series), gyr, acc, mag, q, x, flags)
+    wall, cpu, own = time.perf_counter(), time.process_time(), time.thread_time()
+    for _ in range(reps):
+        est.run_into(next(series), gyr, acc, mag, q, x, flags)
+    wall, cpu, own = (time.perf_counter() - wall, time.process_time() - cpu,
+                      time.thread_time() - own)
+    out["run_into"] = reps * n_sensors * n / wall
+    out["other_threads"] = (cpu - own) / cpu
+    out["cpu_per_wall"] = cpu / wall
+    state = est.state
+    times = [next(series) for _ in range(reps + 1)]  # no gap
+    for a in (gyr, acc, mag, *times):  # as run() passes them: the same specialisation
+        a.flags.writeable = False
+    parallel = n_sensors * n >= PARALLEL_MIN_SAMPLES
+    kernel = est.kernel.run_many if parallel else est.kernel.run
+    kernel(state.rows, state.clock, est._coefs, times[0], gyr, acc, mag, 3, q, x, flags)
+    start = time.perf_counter()
+    for t in times[1:]:
+        kernel(state.rows, state.clock, est._coefs, t, gyr, acc, mag, 3, q, x, flags)
+    out["kernel"] = reps * n_sensors * n / (time.perf_counter() - start)
+    return out
+
+
+def batch_scan(method: str, n_sensors: int = 100_000,
+               frames: tuple[int, ...] = (1, 2, 4, 8, 16)) -> dict[int, float]:
+    """Samples/s of the engine's hot path (``run_into``) for batches of each number of
+    frames of ``n_sensors`` sensors: whether larger batches would help."""
+    rng = np.random.default_rng(1)
+    est = methods.create(method, params(method))
+    width = max(sum(w for _, w in est.outputs_layout), 1)
+    out, t0 = {}, 0.0
+    for n in frames:
+        gyr = rng.normal(0, 0.5, (n_sensors, n, 3))
+        acc = rng.normal(0, 0.5, (n_sensors, n, 3)) + [0.0, 0.0, 9.81]
+        mag = rng.normal(0, 0.5, (n_sensors, n, 3)) + [0.0, 25.0, -43.0]
+        q, x = np.empty((n_sensors, n, 4)), np.empty((n_sensors, n, width))
+        flags = np.empty((n_sensors, n), dtype=np.uint16)
+        reps = max(32 // n, 2)
+        for r in range(reps + 1):
+            if r == 1:
+                start = time.perf_counter()
+            t = t0 + np.arange(n) / RATE_HZ
+            t0 = float(t[-1]) + 1.0 / RATE_HZ
+            est.run_into(t, gyr, acc, mag, q, x, flags)
+        out[n] = reps * n_sensors * n / (time.perf_counter() - start)
+    return out
 
 
 def throughput(method: str, base: tuple[np.ndarray, ...], n_people: int, frames: int = 200,
@@ -154,11 +202,14 @@ def realtime(method: str, base: tuple[np.ndarray, ...], n_people: int, seconds: 
     source = tiled_source(base, n_people)
     engine = Engine(source.info, method, params(method), display_hz=25.0)
     engine.subscribe(lambda pose: None)
-    with engine.start(source):
+    engine.start(source)
+    try:
         time.sleep(seconds)
         now = time.perf_counter()
         behind_s = (now - source.started_s) - engine.session_time_s  # session: 0 at start
         stats = engine.stats()
+    finally:  # far behind, the worker may be in a long catch-up batch: let it end
+        engine.stop(timeout_s=600.0)
     busy = stats.time_filter_s + stats.time_body_s + stats.time_publish_s
     return {
         "sensors": source.info.n_sensors,
@@ -247,15 +298,17 @@ def profile_split(profiler: cProfile.Profile, frames: int) -> str:
 
     kernel = sum(v[2] for (f, _, n), v in entries.items()
                  if "/kernels/" in f and n in ("run", "run_many"))
-    run = total("estimator/compiled.py", "_run_arrays") or total("estimator/contract.py", "run")
+    run = (total("estimator/compiled.py", "run_into") + total("estimator/compiled.py",
+                                                             "_run_arrays")
+           or total("estimator/contract.py", "run"))
     filters = total("live/filtering.py", "run")
     pose = total("live/avatars.py", "pose")
     push = total("live/engine.py", "push")
     process = total("live/engine.py", "process")
     parts = {
         "filter kernel (numba, threads)": kernel,
-        "estimator run() around the kernel": run - kernel,
-        "live filtering around run()": filters - run,
+        "estimator run_into() around the kernel": run - kernel,
+        "live filtering around it (input copies)": filters - run,
         "body model (every person)": pose,
         "rest of the batch (stats, hooks)": process - filters - pose,
         "source polling + frame assembly": push - process,
@@ -284,11 +337,20 @@ def main() -> None:
     summary = []
     for method in args.methods:
         name = methods.get(method).name
-        kernel_rate, run_rate = filter_rates(method)
-        print(f"\n{name}: kernel run_many {kernel_rate / 1e6:.2f} M samples/s "
-              f"({kernel_rate / RATE_HZ:.0f} sensors at 100 Hz), run() "
-              f"{run_rate / 1e6:.2f} M samples/s ({run_rate / kernel_rate:.2f} x kernel) "
+        rates = filter_rates(method)
+        kernel_rate = rates["kernel"]
+        print(f"\n{name}: one batch of 100000 sensors x 4 frames: kernel alone "
+              f"{kernel_rate / 1e6:.2f} M samples/s ({kernel_rate / RATE_HZ:.0f} sensors at "
+              f"100 Hz), the engine's run_into {rates['run_into'] / 1e6:.2f} M samples/s "
+              f"({rates['run_into'] / kernel_rate:.2f} x kernel), run() "
+              f"{rates['run'] / 1e6:.2f} M samples/s ({rates['run'] / kernel_rate:.2f} x kernel) "
               f"[{load()}]")
+        print(f"  both cores? threads other than the caller did "
+              f"{rates['other_threads'] * 100:.0f} % of the kernel's CPU time (50 %: both "
+              f"share it), CPU/wall {rates['cpu_per_wall']:.2f} (2.0 on two free cores)")
+        scan = batch_scan(method)
+        print("  batch size (frames of 100000 sensors): " + ", ".join(
+            f"{n}: {r / 1e6:.2f} M/s" for n, r in scan.items()) + f" [{load()}]")
         tp = throughput(method, base, args.throughput_people)
         print(f"  unpaced engine, {tp['sensors']} sensors: {tp['frames']} frames in "
               f"{tp['wall_s']:.2f} s wall, {tp['cpu_s']:.2f} s CPU -> "

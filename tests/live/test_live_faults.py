@@ -15,6 +15,7 @@ import pytest
 from typer.testing import CliRunner
 
 from margtrack import quaternion as quat
+from margtrack.estimator.compiled import UNRUN
 from margtrack.live.engine import Engine
 from margtrack.live.faults import Fault, FaultyStream, default_faults
 from margtrack.live.lines import LineDecoder, format_line, parse_line_seq
@@ -134,13 +135,15 @@ def test_a_gyro_of_1e300_is_flagged_on_that_sensor_and_the_others_are_untouched(
     assert err < math.radians(1.0)
 
 
+@pytest.mark.parametrize("path", ["run_into", "run"])
 @pytest.mark.parametrize("fault", ["raises", "nan"])
-def test_a_sensor_whose_filter_fails_is_reinitialised_alone(monkeypatch, fault):
-    # the filter of one sensor raising (ekf's ZeroDivisionError in the issue) or returning
-    # NaN: injected into the real filter for samples whose acc x is 123
+def test_a_sensor_whose_filter_fails_is_reinitialised_alone(monkeypatch, fault, path):
+    # one sensor's filter raising (ekf's ZeroDivisionError in the issue) or returning NaN at
+    # samples whose acc x is 123: on the in-place path (run_into, raising as the kernel does:
+    # sensors before the failing one finished, the ones after untouched) and on run
     engine = _engine(3)
     cls = type(engine._estimator)
-    real_run = cls.run
+    real_run, real_run_into = cls.run, cls.run_into
 
     def faulty_run(self, *args, **kwargs):
         acc = np.asarray(kwargs["acc"])
@@ -152,7 +155,26 @@ def test_a_sensor_whose_filter_fails_is_reinitialised_alone(monkeypatch, fault):
             est.quat[marked] = np.nan
         return est
 
-    monkeypatch.setattr(cls, "run", faulty_run)
+    def faulty_run_into(self, t, gyr, acc, mag, q_out, x_out, flags_out, *args, **kwargs):
+        marked = acc[..., 0] == 123.0  # (S, N)
+        before = self.state
+        real_run_into(self, t, gyr, acc, mag, q_out, x_out, flags_out, *args, **kwargs)
+        if fault == "nan":
+            q_out[marked] = np.nan
+        elif marked.any():
+            s, k = (int(v) for v in np.argwhere(marked)[0])
+            after = self.state
+            after.rows[s + 1 :] = before.rows[s + 1 :]
+            self.state = after
+            flags_out[s, k:] = UNRUN
+            flags_out[s + 1 :] = UNRUN
+            raise ZeroDivisionError("float division by zero")
+
+    if path == "run":
+        monkeypatch.setattr(engine._filters, "_hot", False)
+        monkeypatch.setattr(cls, "run", faulty_run)
+    else:
+        monkeypatch.setattr(cls, "run_into", faulty_run_into)
     decoder = LineDecoder(_names(3), True, SourceStats())
     stream = FaultyStream(3, RATE_HZ, 2.0)
     q_log = []
@@ -171,6 +193,10 @@ def test_a_sensor_whose_filter_fails_is_reinitialised_alone(monkeypatch, fault):
     assert np.isfinite(final).all()
     truth = [stream.truth_yaw_rad(s, 1.99) for s in range(3)]
     np.testing.assert_allclose(_yaw(final), truth, atol=math.radians(3.0))
+    # the other sensors went on exactly as without the fault (they saw the same samples)
+    clean = _engine(3)
+    _run(clean, FaultyStream(3, RATE_HZ, 2.0))
+    np.testing.assert_array_equal(final[[0, 2]], clean.latest.q_sensor[[0, 2]])
 
 
 def test_a_flood_over_udp_is_processed_or_counted_lost_line_by_line():

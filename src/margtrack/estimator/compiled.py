@@ -12,9 +12,7 @@ coefficients followed by the method's (:meth:`CompiledEstimator._coefficients`).
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Mapping
-from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, ClassVar, TypeVar
 
@@ -23,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from margtrack import quaternion as quat
 from margtrack.estimator import screening
+from margtrack.estimator.compiled_state import CompiledState
 from margtrack.estimator.contract import Estimate, Estimator
 from margtrack.estimator.flags import first_problem
 from margtrack.estimator.outputs import Deferred, Outputs
@@ -32,60 +31,7 @@ from margtrack.kernels import contract as kc
 
 Array = NDArray[np.float64]
 
-__all__ = ["CompiledEstimator", "CompiledState"]
-
-
-@dataclass
-class CompiledState:
-    """State of S sensors of a compiled method: ``rows`` (S, R) and the ``clock`` (1,).
-
-    The first ``N_CONTRACT`` slots of a row are the contract's (started flag, number of
-    starts, last output, screening state); the method's own follow, named by its
-    ``layout`` (name -> (offset, width) within the row). Read them with :meth:`get`.
-    """
-
-    rows: Array
-    clock: Array
-    layout: Mapping[str, tuple[int, int]] = dataclasses.field(default_factory=dict)
-
-    def copy(self) -> CompiledState:
-        """An independent copy."""
-        return CompiledState(self.rows.copy(), self.clock.copy(), self.layout)
-
-    @property
-    def quat(self) -> Array:
-        """(S, 4) the last output orientation."""
-        return self.rows[:, kc.K_Q : kc.K_Q + 4].copy()
-
-    @property
-    def t_last_s(self) -> float:
-        """Time of the last accepted sample, s (nan before the first)."""
-        return float(self.clock[0])
-
-    @property
-    def ready(self) -> NDArray[np.bool_]:
-        """(S,) whether each sensor has started (since the start or the last gap)."""
-        return self.rows[:, kc.K_READY] > 0.0
-
-    @property
-    def screen(self) -> screening.ScreenState:
-        """The screening state (a copy)."""
-        return screening.ScreenState(
-            packed=self.rows[:, kc.K_SCREEN : kc.K_SCREEN + screening.kernel.N_SCREEN].copy()
-        )
-
-    def get(self, name: str) -> Array:
-        """(S, width) a copy of the named part of the method's state."""
-        offset, width = self.layout[name]
-        return self.rows[:, offset : offset + width].copy()
-
-    def gyr_bias_rad_s(self) -> Array | None:
-        """(S, 3) the gyro bias estimate, rad/s, if the method has one."""
-        return self.get("gyr_bias_rad_s") if "gyr_bias_rad_s" in self.layout else None
-
-    def gyr_bias_sd_rad_s(self) -> Array | None:
-        """(S, 3) its standard deviation, rad/s, if the method knows it."""
-        return self.get("gyr_bias_sd_rad_s") if "gyr_bias_sd_rad_s" in self.layout else None
+__all__ = ["UNRUN", "CompiledEstimator", "CompiledState"]
 
 
 P = TypeVar("P", bound=Params)
@@ -282,11 +228,10 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
                 "reset() first"
             )
         work = self._new_rows(n_sensors) if state is None else state.copy()
-        width = sum(w for _, w in self.outputs_layout)
         # a kernel with ``expand`` keeps N_LEAN values per sample, its outputs made on read
         lean = getattr(self.kernel, "N_LEAN", 0)
         q = np.empty((n_sensors, n, 4))
-        extra = np.empty((n_sensors, n, lean or max(width, 1)))
+        extra = np.empty((n_sensors, n, self.run_width))
         flags = np.empty((n_sensors, n), dtype=np.uint16)
         has = (x.mag is not None) | (self._has_gyr_bit if x.gyr is not None else 0)
         # several sensors: shared among threads (compiled on first use of many sensors)
@@ -323,6 +268,92 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
             outputs=outputs,
             flags=flags,
         )
+
+    @property
+    def run_width(self) -> int:
+        """Values per sample the ``run`` kernel writes: ``kernel.N_LEAN`` for a kernel that
+        computes its extra outputs on read, else the widths of ``outputs_layout`` (at least 1)."""
+        lean = getattr(self.kernel, "N_LEAN", 0)
+        return lean or max(sum(w for _, w in self.outputs_layout), 1)
+
+    def run_into(
+        self,
+        t: Array,
+        gyr: Array | None,
+        acc: Array,
+        mag: Array | None,
+        q_out: Array,
+        x_out: Array,
+        flags_out: NDArray[np.uint16],
+        clock_before: Array | None = None,
+        parallel: bool | None = None,
+    ) -> None:
+        """:meth:`run` for the live engine: the state advanced in place, results in buffers.
+
+        ``t`` (N,) s; ``gyr``, ``acc``, ``mag`` (S, N, 3) C-contiguous float64 (rad/s, m/s²,
+        any field unit; ``gyr``/``mag`` None as for ``run``); ``q_out`` (S, N, 4), ``x_out``
+        (S, N, :attr:`run_width`) (the kernel's per-sample values), ``flags_out``
+        (S, N) uint16, C-contiguous, overwritten. The kernel call of :meth:`run` on the
+        same state (the same results to the bit) without its copies: O(1) checks (shapes,
+        dtypes, layout; values are the screening's), no allocation, no state copy, no
+        unit check. So a kernel that raises leaves the state part-way: ``flags_out`` is
+        filled with :data:`UNRUN` first, so a sensor whose last sample is not UNRUN
+        finished, one whose first sample is UNRUN was not touched, the others stopped in
+        the middle; the shared clock has moved to the batch's end (``clock_before`` (1,),
+        if given, receives it from before the call: what untouched sensors need to run
+        again). With ``strict=True`` a flagged sample raises once every sensor finished.
+        ``parallel``: sensors shared among threads (None: from PARALLEL_MIN_SAMPLES samples).
+        """
+        n_sensors, n = acc.shape[0], t.shape[0]
+        width = self.run_width
+        if self.uses_gyr and gyr is None:
+            raise ValueError(f"method {self.name!r} needs gyroscope data (gyr)")
+        gyr = gyr if self.uses_gyr else None  # ignored, as by run
+        if mag is None and not self.mag_optional:
+            raise ValueError(f"method {self.name!r} needs a magnetometer (mag)")
+        signals = [(nm, a) for nm, a in (("acc", acc), ("gyr", gyr), ("mag", mag)) if a is not None]
+        for name, arr, shape, dtype in (
+            *((nm, a, (n_sensors, n, 3), np.float64) for nm, a in signals),
+            ("q_out", q_out, (n_sensors, n, 4), np.float64),
+            ("x_out", x_out, (n_sensors, n, width), np.float64),
+            ("flags_out", flags_out, (n_sensors, n), np.uint16),
+        ):
+            if arr.shape != shape or arr.dtype != dtype or not arr.flags.c_contiguous:
+                raise ValueError(f"run_into: {name} must be C-contiguous {np.dtype(dtype)} of "
+                                 f"shape {shape}, got {arr.dtype} {arr.shape}")
+        if t.dtype != np.float64 or t.ndim != 1 or n == 0:
+            raise ValueError(f"run_into: t must be float64 of shape (N,) N > 0, got {t.shape}")
+        state = self._state
+        if state is None:
+            state = self._state = self._new_rows(n_sensors)
+        elif state.rows.shape[0] != n_sensors:
+            raise ValueError(
+                f"the state holds {state.rows.shape[0]} sensor(s) but the data has {n_sensors}; "
+                "reset() first"
+            )
+        if clock_before is not None:
+            clock_before[:] = state.clock
+        flags_out.fill(UNRUN)
+        has = (mag is not None) | (self._has_gyr_bit if gyr is not None else 0)
+        if parallel is None:
+            parallel = n_sensors * n >= PARALLEL_MIN_SAMPLES
+        run = self.kernel.run_many if parallel and n_sensors > 1 else self.kernel.run
+        run(
+            state.rows, state.clock, self._coefs, _read_only(np.ascontiguousarray(t)),
+            _read_only(acc if gyr is None else gyr), _read_only(acc),
+            _read_only(acc if mag is None else mag), has, q_out, x_out, flags_out,
+        )
+        if self._params.strict:
+            problem = first_problem(flags_out)
+            if problem is not None:
+                raise ValueError(f"{problem} (strict=True; strict=False flags and skips it)")
+        self._last_flags = flags_out[:, -1].copy()
+        self._flag_one = None
+
+
+#: ``flags_out`` of :meth:`CompiledEstimator.run_into` before the kernel writes a sample: no
+#: sample's flags have every bit set, so it marks the samples the kernel never finished
+UNRUN = np.uint16(0xFFFF)
 
 
 def _deferred_outputs(est: CompiledEstimator[Any], q: Array, kept: Array) -> Outputs:

@@ -3,11 +3,12 @@
 Threading: one worker thread per engine (:meth:`Engine.start`, :mod:`~margtrack.live.worker`)
 polls the source, assembles frames (:class:`~margtrack.live.assembler.FrameAssembler`) and
 processes them; nothing else runs the filters. What arrived while a batch was processed is
-the next batch of N frames, run in *one* call of the estimator's multi-sensor ``run`` on
-(S, N, 3) arrays, so a slow moment costs latency, not samples. Other threads talk to the
-engine through thread-safe methods (:meth:`set_params`, :meth:`request_calibration`,
-:meth:`start_recording`/:meth:`stop_recording`, :meth:`subscribe`, :meth:`stats`);
-:meth:`stop` (or leaving the ``with`` block) joins the worker and closes the source.
+the next batch of N frames, run in *one* multi-sensor kernel call on (S, N, 3) arrays
+(reused buffers, :mod:`~margtrack.live.filtering`), so a slow moment costs latency, not
+samples. Other threads talk to the engine through thread-safe methods (:meth:`set_params`,
+:meth:`request_calibration`, :meth:`start_recording`/:meth:`stop_recording`,
+:meth:`subscribe`, :meth:`stats`); :meth:`stop` (or leaving the ``with`` block) joins the
+worker and closes the source.
 Without :meth:`start`, :meth:`process` runs the same work synchronously. No module-level
 state: engines are independent.
 

@@ -19,6 +19,15 @@ Counted per sensor: ``processed`` (samples run, not held), ``flagged`` (processe
 with a data flag of the input policy), ``reinitialised``. Counts and holds are numpy over
 the (S, N) batch (:func:`hold_where` fills held samples forward); Python runs per sensor
 only for a sensor that failed.
+
+The hot path: a compiled method runs through
+:meth:`~margtrack.estimator.compiled.CompiledEstimator.run_into`, the same kernel call as
+``run`` without its copies: inputs copied (only if not contiguous) and outputs written
+into arrays reused from batch to batch (:class:`~margtrack.live.buffers.BatchBuffers`),
+the state advanced in place. If that call raises, the sensors the kernel finished keep
+their results, the one it stopped in fails alone and the untouched ones run one by one
+(:func:`~margtrack.live.isolation.finish_raised`). Other methods go through ``run``. The
+orientations returned are valid until the next batch (the engine copies what it keeps).
 """
 
 from __future__ import annotations
@@ -28,14 +37,22 @@ import itertools
 import numpy as np
 from numpy.typing import NDArray
 
+from margtrack.estimator.compiled import CompiledEstimator
 from margtrack.estimator.contract import Estimator
 from margtrack.estimator.flags import DATA_FLAGS, Flag
 from margtrack.live.assembler import Frames
-from margtrack.live.isolation import reinitialise, restart, run_each
+from margtrack.live.buffers import BatchBuffers
+from margtrack.live.isolation import finish_raised, reinitialise, restart, run_each
 
 Array = NDArray[np.float64]
 
-__all__ = ["SensorFilters", "hold_where"]
+#: the engine shares a batch's sensors among threads from this many samples a call (4 frames
+#: of 5000 sensors): its batches are a few frames, far below the ``run`` threshold
+#: (:data:`~margtrack.estimator.compiled.PARALLEL_MIN_SAMPLES`), and a live session pays
+#: the parallel kernel's one-time loading (or compilation) once
+LIVE_PARALLEL_MIN_SAMPLES = 20_000
+
+__all__ = ["LIVE_PARALLEL_MIN_SAMPLES", "SensorFilters", "hold_where"]
 
 
 class SensorFilters:
@@ -49,6 +66,14 @@ class SensorFilters:
         self.flagged = np.zeros(n_sensors, dtype=np.int64)
         self.reinitialised = np.zeros(n_sensors, dtype=np.int64)
         self.errors = [""] * n_sensors
+        self._hot = isinstance(estimator, CompiledEstimator)
+        self._clock = np.full(1, np.nan)  # the shared clock before the batch, s
+        if self._hot:
+            self._buffers = BatchBuffers(n_sensors, {
+                "gyr": (3, np.float64), "acc": (3, np.float64), "mag": (3, np.float64),
+                "q": (4, np.float64), "x": (estimator.run_width, np.float64),
+                "flags": (0, np.uint16),
+            })
 
     def run(self, frames: Frames) -> tuple[Array, NDArray[np.uint16]]:
         """Orientations (S, N, 4) and flags (S, N) of one batch (module docstring)."""
@@ -62,6 +87,8 @@ class SensorFilters:
             if frames.restart is not None:
                 restart(self.estimator, np.flatnonzero(frames.restart[:, a]).tolist())
             q, flags = self._segment(frames, a, b)
+            if len(cuts) > 2:  # the next segment reuses the buffers
+                q, flags = q.copy(), flags.copy()
             q_parts.append(q)
             flag_parts.append(flags)
         q = q_parts[0] if len(q_parts) == 1 else np.concatenate(q_parts, axis=1)
@@ -80,18 +107,22 @@ class SensorFilters:
         t = frames.t_s[a:b]
         gyr, acc = frames.gyr[:, a:b], frames.acc[:, a:b]
         mag = None if frames.mag is None else frames.mag[:, a:b]
-        try:
-            est = self.estimator.run(gyr=gyr, acc=acc, mag=mag, t=t, check_units=False)
-            q, flags = est.quat, est.flags
-            if flags is None:
-                flags = np.zeros(q.shape[:2], dtype=np.uint16)
-        except Exception:  # one sensor's fault: find it, the others go on
-            q, flags = run_each(self.estimator, t, gyr, acc, mag, self.q_last,
-                                lambda s, e: self._failed(s, f"filter raised {e!r}"))
+        if self._hot:
+            q, flags = self._run_hot(t, gyr, acc, mag)
+        else:
+            try:
+                est = self.estimator.run(gyr=gyr, acc=acc, mag=mag, t=t, check_units=False)
+                q, flags = est.quat, est.flags
+                if flags is None:
+                    flags = np.zeros(q.shape[:2], dtype=np.uint16)
+            except Exception:  # one sensor's fault: find it, the others go on
+                q, flags = run_each(self.estimator, t, gyr, acc, mag, self.q_last,
+                                    lambda s, e: self._failed(s, f"filter raised {e!r}"))
+            if not q.flags.writeable:  # held and failed sensors are written in place below
+                q = q.copy()
         # quaternions are bounded, so one sum is finite exactly when every entry is
         if not np.isfinite(np.add.reduce(q, axis=None)):
             bad = np.flatnonzero(~np.isfinite(q).all(axis=(1, 2)))
-            q = q.copy()
             q_before = self.q_last[bad]
             q_before[~np.isfinite(q_before).all(axis=1)] = (1.0, 0.0, 0.0, 0.0)
             q[bad] = hold_where(q[bad], ~np.isfinite(q[bad]).all(axis=2), q_before)
@@ -103,9 +134,27 @@ class SensorFilters:
             stale = frames.stale[:, a:b]
             rows = np.flatnonzero(stale.any(axis=1))
             if rows.size:
-                q = q.copy()
                 q[rows] = hold_where(q[rows], stale[rows], self.q_last[rows])
-        self.q_last = q[:, -1].copy()
+        np.copyto(self.q_last, q[:, -1])
+        return q, flags
+
+    def _run_hot(self, t: Array, gyr: Array, acc: Array, mag: Array | None
+                 ) -> tuple[Array, NDArray[np.uint16]]:
+        """The compiled method's kernel on reused buffers, the state in place (module
+        docstring); a raise completed by :func:`~margtrack.live.isolation.finish_raised`."""
+        buf, n = self._buffers, t.shape[0]
+        est = self.estimator
+        assert isinstance(est, CompiledEstimator)
+        gyr = buf.contiguous("gyr", gyr) if est.uses_gyr else None
+        acc = buf.contiguous("acc", acc)
+        mag = None if mag is None else buf.contiguous("mag", mag)
+        q, x, flags = buf.get("q", n), buf.get("x", n), buf.get("flags", n)
+        try:
+            est.run_into(np.ascontiguousarray(t, dtype=np.float64), gyr, acc, mag, q, x, flags,
+                         self._clock, parallel=self.n_sensors * n >= LIVE_PARALLEL_MIN_SAMPLES)
+        except Exception as exc:  # one sensor's fault: it fails alone, the others go on
+            finish_raised(est, t, gyr, acc, mag, self.q_last, self._clock, q, flags, exc,
+                          lambda s, e: self._failed(s, f"filter raised {e!r}"))
         return q, flags
 
     def _failed(self, sensor: int, why: str) -> None:

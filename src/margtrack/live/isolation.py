@@ -12,7 +12,12 @@ estimator's state that belong to one sensor, for both state kinds of the contrac
   forgotten, its output held at ``q_hold``) and it restarts at its next usable sample
   (after its filter failed: a non-finite output or an exception);
 - :func:`run_each`: the batch run sensor by sensor, a sensor whose run raises is
-  re-initialised and its output held; the others go on (after the S-sensor run raised).
+  re-initialised and its output held; the others go on (after the S-sensor run raised);
+- :func:`finish_raised`: the same outcome after the in-place run
+  (:meth:`~margtrack.estimator.compiled.CompiledEstimator.run_into`) raised part-way: the
+  sensors it finished keep their results, the first one it did not finish is taken for
+  the one that raised (the kernel runs the sensors in order; with threads, any other one
+  it left part-way too) and re-initialised, the untouched ones run one by one.
 """
 
 from __future__ import annotations
@@ -25,15 +30,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from margtrack.estimator import screening
-from margtrack.estimator.compiled import CompiledState
+from margtrack.estimator.compiled import UNRUN, CompiledState
 from margtrack.estimator.contract import Estimator
-from margtrack.estimator.flags import Flag
+from margtrack.estimator.flags import DATA_FLAGS, Flag
 from margtrack.kernels import contract as kc
 from margtrack.kernels import screen as screen_kernel
 
 Array = NDArray[np.float64]
 
-__all__ = ["reinitialise", "restart", "run_each"]
+__all__ = ["finish_raised", "reinitialise", "restart", "run_each"]
 
 
 def restart(estimator: Estimator, sensors: Sequence[int]) -> None:
@@ -86,12 +91,69 @@ def run_each(
     failing sensor; ``failed(sensor, exc)`` is told about each failure. Returns quat
     (S, N, 4) and flags (S, N). The estimator's state afterwards holds every sensor's.
     """
-    state = estimator.state
     n_sensors, n = acc.shape[0], acc.shape[1]
     q_out = np.empty((n_sensors, n, 4))
     flags = np.zeros((n_sensors, n), dtype=np.uint16)
-    merged = state
-    for s in range(n_sensors):
+    _run_rows(estimator, range(n_sensors), t, gyr, acc, mag, q_hold, failed, q_out, flags)
+    return q_out, flags
+
+
+def finish_raised(
+    estimator: Estimator, t: Array, gyr: Array | None, acc: Array, mag: Array | None,
+    q_hold: Array, clock_before: Array, q_out: Array, flags: NDArray[np.uint16],
+    exc: Exception, failed: Callable[[int, Exception], None],
+) -> None:
+    """Complete a batch whose in-place run raised ``exc`` part-way (module docstring).
+
+    ``q_out`` (S, N, 4) and ``flags`` (S, N) as the run left them (:data:`UNRUN` where it
+    did not get to), completed in place; ``clock_before`` (1,) the shared clock before the
+    run; ``q_hold``, ``failed`` as for :func:`run_each`. The estimator's state afterwards
+    holds every sensor's, the clock at the batch's end (where the finished sensors are).
+    """
+    done = flags[:, -1] != UNRUN
+    untouched = flags[:, 0] == UNRUN
+    stopped = np.flatnonzero(~done)
+    state = estimator.state
+    if state is None:
+        raise exc
+    clock_after = state.clock.copy() if isinstance(state, CompiledState) else None
+    if stopped.size:
+        first = int(stopped[0])
+        broken = [s for s in stopped.tolist() if s == first or not untouched[s]]
+    else:  # the kernel finished: strict mode refused flagged samples: their sensors fail
+        broken = np.flatnonzero((flags & np.uint16(DATA_FLAGS)).any(axis=1)).tolist()
+        first = -1
+        if not broken:
+            raise exc
+    for s in broken:
+        failed(s, exc)
+        q_out[s] = q_hold[s]
+        flags[s] = np.uint16(Flag.INITIALISING)
+        reinitialise(estimator, s, q_hold[s])
+    rest = [s for s in stopped.tolist() if s != first and untouched[s]]
+    if rest:
+        state = estimator.state
+        assert isinstance(state, CompiledState)
+        state.clock[:] = clock_before  # what the untouched sensors start from
+        estimator.state = state
+        _run_rows(estimator, rest, t, gyr, acc, mag, q_hold, failed, q_out, flags)
+    if clock_after is not None and bool(done.any() or rest):
+        state = estimator.state
+        assert isinstance(state, CompiledState)
+        state.clock[:] = clock_after
+        estimator.state = state
+
+
+def _run_rows(
+    estimator: Estimator, sensors: Sequence[int], t: Array, gyr: Array | None, acc: Array,
+    mag: Array | None, q_hold: Array, failed: Callable[[int, Exception], None], q_out: Array,
+    flags: NDArray[np.uint16],
+) -> None:
+    """:func:`run_each` over ``sensors``, writing their rows of ``q_out`` and ``flags``."""
+    state = estimator.state  # as before the batch: every sensor starts from it
+    n_sensors = acc.shape[0]
+    merged = None if state is None else state.copy()  # takes the clock of the runs
+    for s in sensors:
         one = type(estimator)(estimator.params, rate_hz=estimator.rate_hz)
         if state is not None:
             one.state = _take_rows(state, s)
@@ -109,8 +171,7 @@ def run_each(
                 merged = estimator.state
             continue
         q_out[s] = est.quat[0]
-        if est.flags is not None:
-            flags[s] = est.flags[0]
+        flags[s] = 0 if est.flags is None else est.flags[0]
         after = one.state
         if after is not None:
             if merged is None:  # no state before this batch: build one for every sensor
@@ -119,7 +180,6 @@ def run_each(
             _set_clock(merged, after)
     if merged is not None:
         estimator.state = merged
-    return q_out, flags
 
 
 # -- state rows --------------------------------------------------------------------------

@@ -150,6 +150,9 @@ class StatsMeter:
         self._mag_ref = np.full(n, np.nan)
         self._mag_ref_missing = True  # some sensor has no reference norm yet
         self._mag_now = np.full(n, np.nan)
+        #: (S, 3) the latest sample's field, kept as a view (a source does not overwrite the
+        #: samples it handed over): its norm is taken only when :meth:`health` asks
+        self._mag_latest: Array | None = None
 
     def batch(self, t_s: Array, held: NDArray[np.bool_], mag: Array | None,
               seconds: float, late: int) -> None:
@@ -166,7 +169,7 @@ class StatsMeter:
         if mag is not None:
             if self._mag_ref_missing:
                 norms = np.linalg.norm(mag, axis=2)  # (S, N)
-                self._mag_now = norms[:, -1]
+                self._mag_now, self._mag_latest = norms[:, -1], None
                 if not self._mag_first:
                     self._mag_first_until = float(t_s[0]) + 1.0
                 self._mag_first.append(norms)
@@ -175,7 +178,7 @@ class StatsMeter:
                     self._mag_ref_missing = bool(np.isnan(self._mag_ref).any())
                     self._mag_first = []
             else:  # only the latest sample's norm is needed once the reference is known
-                self._mag_now = np.linalg.norm(mag[:, -1], axis=1)
+                self._mag_latest = mag[:, -1]
 
     def published(self, latency_s: float) -> None:
         """Record one published pose."""
@@ -194,6 +197,9 @@ class StatsMeter:
                 if held_rows is not None:
                     counts -= held_rows
             rate = counts / span if span > 0 else rate
+        latest = self._mag_latest
+        if latest is not None:
+            self._mag_now = np.linalg.norm(latest, axis=1)
         ratio = self._mag_now / self._mag_ref
         ok = np.abs(ratio - 1.0) <= self.mag_norm_tol  # NaN (no reference yet) -> False
         return SensorHealth(self.names, np.asarray(rate, float), dropped.copy(), ratio, ok,
