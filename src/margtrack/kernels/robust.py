@@ -485,7 +485,7 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
         row[R_LP_STAGE] = LP_FIRST
         acc_ok = False  # used: not filtered a second time below
     rest = False
-    gains = R_GAINS  # read only when dt > 0
+    gains = R_GAINS + int(row[R_GAINS_IN_USE])  # the slot in use (read only when dt > 0)
     if dt > 0.0:
         gains = _gains(row, coef, dt)
         row[R_SINCE_START] += dt
