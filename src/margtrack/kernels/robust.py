@@ -1,3 +1,4 @@
+# ruff: noqa: F405  (names from robust_layout's star import)
 """Kernel of margtrack's robust filter (``filters/robust.py``), on ``kernels/contract.py``.
 
 Internally everything is computed in ENU; the output is rotated to NED at the end when
@@ -22,35 +23,8 @@ during motion stops dominating it after a second or two instead of after several
 of the first seconds was tried: it lets a periodic motion's linear acceleration through,
 49 deg of tilt on a 1 Hz limb swing, against 2 deg from the start sample).
 
-One sensor's state is a flat row: the contract's slots, then these (offsets from
-``contract.N_CONTRACT``; the Python names are ``Robust.state_layout``'s):
-
-=================  =====  ==============================================================
-``R_Q_GYR``        4      q_gyr: body to the strapdown frame I (identity at a start)
-``R_Q_ACC``        4      q_acc: I to the level frame (the whole orientation at a start)
-``R_HEADING``      1      heading about up from the level frame to ENU, rad
-``R_BIAS``         3      gyro bias estimate, rad/s, body axes (kept on restart)
-``R_BIAS_VAR``     3      its variance per axis, (rad/s)² (kept on restart)
-``R_BIAS_SD``      3      its standard deviation, rad/s (kept; ``sqrt`` of the variance)
-``R_ACC_LP``       3      accelerometer low-passed in I, m/s²
-``R_ACC_LP_BW``    6      Butterworth states (s1, s2) of x, y, z in turn, m/s²
-``R_LP_STAGE``     1      ``LP_EMPTY``, ``LP_FIRST`` or ``LP_FILTER`` (below)
-``R_SINCE_START``  1      time since the start (first sample or restart), s
-``R_HEADING_N``    1      heading measurements averaged since the start
-``R_GYR_REST``     3      gyro low-passed with ``rest_tau_s``, rad/s (rest detector)
-``R_ACC_REST``     3      accelerometer low-passed with ``rest_tau_s``, m/s²
-``R_STILL``        1      how long the sensor has been still, s
-``R_MAG_NORM_REF`` 1      field norm taken as undisturbed (0: from the next sample); kept
-``R_MAG_DIP_REF``  1      dip taken as undisturbed, rad, down positive (nan: next); kept
-``R_CAND_NORM``    1      a new steady field's norm, candidate reference; kept
-``R_CAND_DIP``     1      its dip, rad; kept
-``R_CAND_S``       1      how long the candidate has been steady, s; kept
-``R_GAINS``        23     derived, not state: two slots of 11, each the interval (s)
-                          and the four time constants its gains were computed for, then
-                          k_rest, k_ref, k_mag and the Butterworth (b0, a1, a2); then
-                          the offset of the slot in use. An interval found in neither
-                          slot is computed into the other one (see :func:`_gains`)
-=================  =====  ==============================================================
+The row layout, coefficients and outputs are in ``kernels/robust_layout.py``; the
+interval-dependent gains in ``kernels/robust_gains.py``.
 
 ``_step`` returns the flag bits ``REST`` and ``MAG_DISTURBED``; its extra outputs
 (``x_out``, ``N_OUT``) are the 6-D quaternion (4, output frame), the bias (3, rad/s) and
@@ -64,70 +38,13 @@ import math
 from margtrack.kernels import contract
 from margtrack.kernels._quat import exp_half, mul, normalized
 from margtrack.kernels.jit import njit
-
-# -- stages of the accelerometer low-pass (``R_LP_STAGE``) ---------------------------------
-LP_EMPTY = 0  # no usable accelerometer sample since the start
-LP_FIRST = 1  # holds the first sample (rotated into I); filter states set at the next step
-LP_FILTER = 2  # the second-order Butterworth low-pass, running
-
-# -- flag bits (margtrack.estimator.flags.Flag) ---------------------------------------------
-MAG_DISTURBED = 64
-REST = 128
-
-# -- parameter layout (``coef`` (N_COEF,)) ------------------------------------------------
-C_TAU_ACC = 0  # s
-C_TAU_MAG = 1  # s
-C_BIAS_WALK = 2  # rad/s/√s
-C_BIAS_REST_NOISE = 3  # rad/s
-C_BIAS_MOTION_NOISE = 4  # rad/s
-C_BIAS_MAX = 5  # rad/s
-C_REST_GYR = 6  # rad/s
-C_REST_ACC = 7  # m/s²
-C_REST_MIN_T = 8  # s
-C_REST_TAU = 9  # s
-C_MAG_NORM_TOL = 10  # relative
-C_MAG_DIP_TOL = 11  # rad
-C_MAG_NEW_REF_T = 12  # s
-C_MAG_REF_TAU = 13  # s
-C_NED = 14  # 1: output in NED
-C_CONVERGE = 15  # s, longest start-up phase of the heading (0: none)
-C_BIAS_SIGMA0 = 16  # rad/s, initial standard deviation of the bias
-C_MAG_NORM_REF0 = 17  # initial field norm reference, the field's unit (0: the first sample)
-C_MAG_DIP_REF0 = 18  # initial dip reference, rad (nan: the first sample)
-N_COEF = 19
-
-# -- row layout (module docstring) ----------------------------------------------------------
-R_Q_GYR = contract.N_CONTRACT
-R_Q_ACC = R_Q_GYR + 4
-R_HEADING = R_Q_ACC + 4
-R_BIAS = R_HEADING + 1
-R_BIAS_VAR = R_BIAS + 3
-R_BIAS_SD = R_BIAS_VAR + 3
-R_ACC_LP = R_BIAS_SD + 3
-R_ACC_LP_BW = R_ACC_LP + 3
-R_LP_STAGE = R_ACC_LP_BW + 6
-R_SINCE_START = R_LP_STAGE + 1
-R_HEADING_N = R_SINCE_START + 1
-R_GYR_REST = R_HEADING_N + 1
-R_ACC_REST = R_GYR_REST + 3
-R_STILL = R_ACC_REST + 3
-R_MAG_NORM_REF = R_STILL + 1
-R_MAG_DIP_REF = R_MAG_NORM_REF + 1
-R_CAND_NORM = R_MAG_DIP_REF + 1
-R_CAND_DIP = R_CAND_NORM + 1
-R_CAND_S = R_CAND_DIP + 1
-R_GAINS = R_CAND_S + 1
-# offsets within a slot of R_GAINS: the key (interval, time constants), then the gains
-G_DT, G_TAU_ACC, G_TAU_MAG, G_REST_TAU, G_REF_TAU, G_K_REST, G_K_REF, G_K_MAG, G_BW = range(9)
-N_GAINS = G_BW + 3  # (b0, a1, a2) last
-R_GAINS_IN_USE = R_GAINS + 2 * N_GAINS  # offset of the slot in use (0 in a fresh row: the first)
-N_ROW = R_GAINS_IN_USE + 1
-
-# extra outputs (x_out)
-X_QUAT6 = 0
-X_BIAS = 4
-X_BIAS_SD = 7
-N_OUT = 10
+from margtrack.kernels.robust_gains import (  # noqa: F401 (butterworth_coefficients: kernel.*)
+    _bw_hold,
+    _bw_step,
+    _gains,
+    butterworth_coefficients,
+)
+from margtrack.kernels.robust_layout import *  # noqa: F403 (the layout, as this module's)
 
 _H = math.sqrt(0.5)  # ENU <-> NED: q_ned = (0, h, h, 0) ⊗ q_enu, and back the same way
 
@@ -155,83 +72,6 @@ def _wrap(angle):
     if angle < -math.pi:
         return angle + 2.0 * math.pi
     return angle
-
-
-@njit(cache=True, inline="always")
-def _lowpass_gain(dt, tau):
-    """First-order low-pass gain for a time constant tau (s); 1 when tau <= 0."""
-    if tau <= 0.0:
-        return 1.0
-    return 1.0 - math.exp(-dt / tau)
-
-
-@njit(cache=True)
-def butterworth_coefficients(step, tau):
-    """(b0, a1, a2) of the second-order Butterworth low-pass for time constant tau at step.
-
-    Cut-off ``f_c = sqrt(2) / (2 pi tau)`` (so its step response is close to a first-order
-    filter's with the same tau), discretised by the bilinear transform with pre-warping;
-    ``b1 = 2 b0`` and ``b2 = b0``.
-    """
-    fc = math.sqrt(2.0) / (2.0 * math.pi * tau)
-    c = math.tan(math.pi * fc * step)
-    d = c * c + math.sqrt(2.0) * c + 1.0
-    return c * c / d, 2.0 * (c * c - 1.0) / d, (1.0 - math.sqrt(2.0) * c + c * c) / d
-
-
-@njit(cache=True, inline="always")
-def _bw_step(b0, a1, a2, s1, s2, x):
-    """One sample through the low-pass (transposed direct form II): (y, s1, s2)."""
-    y = b0 * x + s1
-    return y, 2.0 * b0 * x - a1 * y + s2, b0 * x - a2 * y
-
-
-@njit(cache=True, inline="always")
-def _bw_hold(b0, a1, a2, x):
-    """States (s1, s2) of the low-pass in the steady state of a constant input x."""
-    s2 = (b0 - a2) * x
-    return (2.0 * b0 - a1) * x + s2, s2
-
-
-@njit(cache=True, inline="always")
-def _gains_match(row, g, coef, step):
-    """Whether the gains of the slot at ``row[g:]`` were computed for this interval and
-    these time constants."""
-    return (
-        row[g + G_DT] == step
-        and row[g + G_TAU_ACC] == coef[C_TAU_ACC]
-        and row[g + G_TAU_MAG] == coef[C_TAU_MAG]
-        and row[g + G_REST_TAU] == coef[C_REST_TAU]
-        and row[g + G_REF_TAU] == coef[C_MAG_REF_TAU]
-    )
-
-
-@njit(cache=True, inline="always")
-def _gains(row, coef, step):
-    """The offset of the slot holding the gains for interval ``step``; computed (3 ``exp``,
-    a ``tan``) only when neither slot has them for this interval and the time constants.
-
-    Timestamps of a steady rate give intervals that differ in the last bits (``t = i /
-    rate`` has 2-3 distinct differences in turn; BROAD's clock 21): one slot recomputed
-    them at 40-65 % of the samples, two at 0.05 %. The values are those of a fresh
-    computation (the same function of the same numbers)."""
-    g = R_GAINS + (N_GAINS if row[R_GAINS_IN_USE] == N_GAINS else 0)  # any value: a slot
-    if _gains_match(row, g, coef, step):
-        return g
-    g = 2 * R_GAINS + N_GAINS - g  # the other slot
-    row[R_GAINS_IN_USE] = g - R_GAINS
-    if not _gains_match(row, g, coef, step):
-        row[g + G_DT] = step
-        row[g + G_TAU_ACC] = coef[C_TAU_ACC]
-        row[g + G_TAU_MAG] = coef[C_TAU_MAG]
-        row[g + G_REST_TAU] = coef[C_REST_TAU]
-        row[g + G_REF_TAU] = coef[C_MAG_REF_TAU]
-        row[g + G_K_REST] = _lowpass_gain(step, coef[C_REST_TAU])
-        row[g + G_K_REF] = _lowpass_gain(step, coef[C_MAG_REF_TAU])
-        row[g + G_K_MAG] = _lowpass_gain(step, coef[C_TAU_MAG])
-        b0, a1, a2 = butterworth_coefficients(step, coef[C_TAU_ACC])
-        row[g + G_BW], row[g + G_BW + 1], row[g + G_BW + 2] = b0, a1, a2
-    return g
 
 
 @njit(cache=True, inline="always")
