@@ -55,7 +55,7 @@ def test_first_call_makes_every_kernel_a_numba_dispatcher():
     import numba
     from numba.core.registry import CPUDispatcher
 
-    from margtrack.kernels import contract, robust, screen
+    from margtrack.kernels import contract, ekf_step, robust, screen
 
     rows, twin = np.zeros((2, screen.N_SCREEN)), np.zeros((2, screen.N_SCREEN))
     screen.fresh(rows)  # a first call (or a later one: the result is the same)
@@ -63,6 +63,7 @@ def test_first_call_makes_every_kernel_a_numba_dispatcher():
     assert jit.numba_loaded()
     assert isinstance(robust.run, CPUDispatcher) and isinstance(contract.run_series, CPUDispatcher)
     assert contract.prange is numba.prange
+    assert ekf_step.literally is numba.literally  # the placeholder is rebound too
     np.testing.assert_array_equal(rows, twin)  # NaN where the Python twin puts NaN
 
 

@@ -73,7 +73,7 @@ class _Placeholder(click.Command):
 
 # each module registers its commands on import, in the order `margtrack --help` lists them
 COMMAND_MODULES = ("inspect", "simulate", "run", "evaluate", "experiment", "bench", "batch", "body",
-                   "plot")
+                   "plot", "precompile")
 for _module in COMMAND_MODULES:
     importlib.import_module(f"margtrack.cli.{_module}")
 

@@ -250,17 +250,9 @@ def _start(row, coef, first, qw, qx, qy, qz):
     start_n(row, coef, first, qw, qx, qy, qz, N)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", _nrt=False)
+@njit(cache=True, inline="always")
 def _step(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
-    """:func:`step_n` for the 7-state filter.
-
-    Not inlined into the entry points (unlike ``_start`` and ``_hold``): compiled once and
-    called, which keeps the kernels' compilation short at no measurable cost per sample.
-    Without numba's reference counting (``_nrt=False``: the step creates no arrays; the
-    helpers it inlines would otherwise count their array arguments, a dozen atomic calls
-    per sample) and with numpy's division semantics (no zero checks: every divisor is
-    guarded or positive).
-    """
+    """:func:`step_n` for the 7-state filter (compiled once for n = 7 and called)."""
     return step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out, N)
 
 

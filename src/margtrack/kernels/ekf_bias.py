@@ -21,7 +21,7 @@ its sd (3).
 from __future__ import annotations
 
 from margtrack.kernels import contract
-from margtrack.kernels.ekf import E_X, FASTMATH, hold_n, start_n, step_n
+from margtrack.kernels.ekf import E_X, hold_n, start_n, step_n
 from margtrack.kernels.jit import njit
 
 N = 10  # [ω (3), q (4), b (3)]
@@ -48,10 +48,10 @@ def _start(row, coef, first, qw, qx, qy, qz):
     start_n(row, coef, first, qw, qx, qy, qz, N)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", _nrt=False)
+@njit(cache=True, inline="always")
 def _step(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
-    """:func:`margtrack.kernels.ekf.step_n` with the bias state (compiled once, called;
-    the options of :func:`margtrack.kernels.ekf._step`)."""
+    """:func:`margtrack.kernels.ekf.step_n` with the bias state (compiled once for n = 10
+    and called)."""
     return step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out, N)
 
 

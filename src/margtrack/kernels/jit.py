@@ -1,16 +1,16 @@
-"""numba's ``njit`` and ``prange``, with numba imported only when a kernel first runs.
+"""numba's ``njit``, ``prange`` and ``literally``, numba imported when a kernel first runs.
 
-Kernel modules take ``njit`` and ``prange`` from here instead of from numba. Importing
-numba and loading its registries costs about half a second in every new process, whatever
-the kernel, so a kernel defined here is a :class:`LazyKernel` until it is first called from
-Python. That call
+Kernel modules take ``njit``, ``prange`` and ``literally`` from here instead of from numba.
+Importing numba and loading its registries costs about half a second in every new process,
+whatever the kernel, so a kernel defined here is a :class:`LazyKernel` until it is first
+called from Python. That call
 
 1. runs an ahead-of-time build of the kernel when one matches its argument types
    (:mod:`margtrack.kernels.aot`; numba is then never imported), or else
 2. imports numba once and turns *every* kernel defined so far into a real numba dispatcher
    (same options, same ``cache=True`` files), rebinding the module globals that name a
-   kernel or ``prange``, so kernels calling kernels compile exactly as before. Kernels
-   defined after that are numba dispatchers from the start.
+   kernel, ``prange`` or ``literally``, so kernels calling kernels compile exactly as
+   before. Kernels defined after that are numba dispatchers from the start.
 
 The registry of kernels is process-wide by nature (numba's own dispatchers are too).
 """
@@ -24,7 +24,8 @@ from collections.abc import Callable
 from typing import Any
 
 __all__ = [
-    "LazyKernel", "kernels", "njit", "numba_loaded", "on_numba_load", "prange", "resolve_all",
+    "LazyKernel", "kernels", "literally", "njit", "numba_loaded", "on_numba_load", "prange",
+    "resolve_all",
 ]
 
 
@@ -38,7 +39,20 @@ class _PrangePlaceholder:
         return "prange (numba not imported yet)"
 
 
+class _LiterallyPlaceholder:
+    """Stands for ``numba.literally`` in kernel modules until numba is imported."""
+
+    def __call__(self, value: Any) -> Any:  # pure Python use, as numba.literally does
+        return value
+
+    def __repr__(self) -> str:
+        return "literally (numba not imported yet)"
+
+
 prange: Any = _PrangePlaceholder()
+#: ``literally(n)`` in a kernel compiles it once per constant value of n at its call sites
+#: (numba's literal dispatch): a size fixed at compile time without inlining the kernel
+literally: Any = _LiterallyPlaceholder()
 
 _KERNELS: list[LazyKernel] = []  # every kernel defined, numba's or not yet
 _ON_LOAD: list[Callable[[], None]] = []
@@ -149,7 +163,7 @@ def resolve_all() -> None:
         real = {id(k): numba.njit(**k.options)(k.py_func) for k in _KERNELS}
         # every global names its dispatcher before any kernel can run (and compile) through
         # numba, also when another thread calls a kernel meanwhile
-        _rebind(real, numba.prange)
+        _rebind(real, numba.prange, numba.literally)
         for kernel in _KERNELS:
             kernel.dispatcher = real[id(kernel)]
         _NUMBA = numba
@@ -160,8 +174,9 @@ def kernels() -> list[LazyKernel]:
     return list(_KERNELS)
 
 
-def _rebind(real: dict[int, Any], real_prange: Any) -> None:
-    """Point every module global naming a kernel (or ``prange``) at the real object."""
+def _rebind(real: dict[int, Any], real_prange: Any, real_literally: Any) -> None:
+    """Point every module global naming a kernel (or ``prange``, ``literally``) at the real
+    object."""
     for module in list(sys.modules.values()):
         names = getattr(module, "__dict__", None)
         if not isinstance(names, dict):
@@ -171,6 +186,8 @@ def _rebind(real: dict[int, Any], real_prange: Any) -> None:
                 names[name] = real[id(value)]
             elif isinstance(value, _PrangePlaceholder):
                 names[name] = real_prange
+            elif isinstance(value, _LiterallyPlaceholder):
+                names[name] = real_literally
 
 
 if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):

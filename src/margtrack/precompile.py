@@ -1,0 +1,113 @@
+"""Compile the methods' kernels into numba's cache before they are needed, once per machine.
+
+numba compiles a kernel on its first call in a process that finds no valid entry in its
+cache (a fresh install, a new numba, an edited source) and writes the result beside the
+kernel's source (``cache=True``); every later process loads it in milliseconds. A method's
+kernels take from a few seconds (triad) to about a minute (ekf) to compile, and processes
+started together (Dask workers on one machine, a test suite spread over the cores) each
+compile the same kernels at the same time. :func:`precompile` compiles them once instead:
+each method in one process of a pool, the methods shared among the processes.
+
+A method is compiled by using it the way programs do, on a simulated recording: ``run``
+on one sensor and on several (the threaded kernel), and ``update`` sample by sample on one
+sensor (past the unit check, so the one-sample kernel too) and on several. Kernels called
+with other argument types (float32 arrays straight into a kernel, say) still compile on
+first use.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+
+import numpy as np
+
+__all__ = ["precompile"]
+
+#: samples of the simulated recording; the several-sensor run is long enough to take the
+#: threaded kernel (``estimator.compiled.PARALLEL_MIN_SAMPLES``)
+_SAMPLES = 400
+_SENSORS = 2
+
+
+def precompile(
+    names: Iterable[str] | None = None,
+    *,
+    jobs: int | None = None,
+    progress: Callable[[str, float], None] | None = None,
+) -> dict[str, float]:
+    """Compile the kernels of the methods ``names`` (default: all) into numba's cache.
+
+    ``jobs`` processes share the methods (default: the machine's CPUs, at most one per
+    method; 1 compiles in this process). ``progress(name, seconds)`` is called as each
+    method is done. Returns the seconds each method took in its process: compilation on a
+    cold cache, loading from the cache otherwise (a fraction of a second). Nothing is
+    compiled with ``NUMBA_DISABLE_JIT=1`` (the kernels then run as Python): returns {}.
+    A method that fails raises its error, after the others have finished.
+    """
+    from margtrack import methods
+
+    chosen = list(methods.available() if names is None else names)
+    for name in chosen:
+        methods.get(name)  # an unknown name raises here, before any process starts
+    if jobs is None:
+        jobs = os.cpu_count() or 1
+    if jobs < 1:
+        raise ValueError(f"jobs must be at least 1, got {jobs}")
+    if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0") or not chosen:
+        return {}
+    jobs = min(jobs, len(chosen))
+    seconds: dict[str, float] = {}
+    if jobs == 1:
+        for name in chosen:
+            seconds[name] = _compile_method(name)
+            if progress is not None:
+                progress(name, seconds[name])
+        return seconds
+    failures: dict[str, BaseException] = {}
+    # spawn: a fresh interpreter (forking a process with numba's threads running is unsafe)
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
+        futures = {pool.submit(_compile_method, name): name for name in chosen}
+        for future in as_completed(futures):
+            name = futures[future]
+            try:
+                seconds[name] = future.result()
+            except Exception as exc:  # reported below, once every method has finished
+                failures[name] = exc
+                continue
+            if progress is not None:
+                progress(name, seconds[name])
+    if failures:
+        name, exc = next(iter(failures.items()))
+        others = f" (and {', '.join(sorted(failures)[1:])})" if len(failures) > 1 else ""
+        raise RuntimeError(f"compiling method {name!r} failed{others}: {exc}") from exc
+    return {name: seconds[name] for name in chosen}
+
+
+def _compile_method(name: str) -> float:
+    """Use method ``name`` as programs do (module docstring); the seconds it took."""
+    # a quick-start build would serve the calls without compiling (kernels/aot.py)
+    os.environ["MARGTRACK_AOT"] = "0"
+    from margtrack import methods
+    from margtrack.estimator.compiled import PARALLEL_MIN_SAMPLES
+    from margtrack.sim import simulate_motion
+
+    start = time.perf_counter()
+    rec = simulate_motion("random", duration_s=_SAMPLES / 100.0, rate_hz=100.0, seed=1)
+    gyr, acc, mag = rec.gyr[:_SAMPLES], rec.acc[:_SAMPLES], rec.mag[:_SAMPLES]
+    methods.create(name).run(gyr=gyr, acc=acc, mag=mag, rate_hz=100.0)
+    reps = -(-PARALLEL_MIN_SAMPLES // (_SENSORS * _SAMPLES))  # enough for the threaded kernel
+    many = [np.tile(x, (_SENSORS, reps, 1)) for x in (gyr, acc, mag)]
+    methods.create(name).run(gyr=many[0], acc=many[1], mag=many[2], rate_hz=100.0)
+    if not getattr(methods.get(name), "offline", False):
+        one = methods.create(name, rate_hz=100.0)
+        for i in range(_SAMPLES):
+            one.update(gyr[i], acc[i], mag[i])
+        several = methods.create(name, rate_hz=100.0)
+        for i in range(3):
+            several.update(many[0][:, i], many[1][:, i], many[2][:, i])
+    return time.perf_counter() - start

@@ -1,0 +1,75 @@
+"""margtrack.precompile and ``margtrack compile``: kernels into numba's cache ahead of use."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from margtrack.precompile import precompile
+
+#: counts numba's compilations while a method is used as precompile uses it
+COUNT_COMPILES = """\
+import sys
+import numba.core.event as event
+from margtrack.precompile import _compile_method
+
+class Count(event.Listener):
+    n = 0
+    def on_start(self, ev):
+        Count.n += 1
+    def on_end(self, ev):
+        pass
+
+with event.install_listener("numba:compile", Count()):
+    for name in sys.argv[1:]:
+        _compile_method(name)
+print("COMPILED", Count.n)
+"""
+
+
+def _run(args: list[str], cache: Path) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    env.pop("NUMBA_DISABLE_JIT", None)
+    proc = subprocess.run([sys.executable, *args], capture_output=True, text=True, env=env,
+                          timeout=600, check=False)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return proc
+
+
+def _compiles(names: list[str], cache: Path) -> int:
+    out = _run(["-c", COUNT_COMPILES, *names], cache).stdout.split()
+    return int(out[out.index("COMPILED") + 1])
+
+
+@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"),
+                    reason="NUMBA_DISABLE_JIT: nothing compiles, nothing to cache")
+def test_the_compile_command_fills_the_cache_so_later_processes_compile_nothing(tmp_path):
+    cache = tmp_path / "numba"
+    # a cold cache: using the methods compiles their kernels
+    assert _compiles(["triad"], tmp_path / "cold") > 0
+    proc = _run(["-c", "from margtrack.cli import app; app()", "compile", "triad", "fqa",
+                 "--jobs", "2"], cache)
+    assert "2 methods ready" in proc.stdout
+    assert "triad" in proc.stdout and "fqa" in proc.stdout
+    # processes started afterwards load every kernel from the cache
+    assert _compiles(["triad", "fqa"], cache) == 0
+
+
+def test_an_unknown_method_is_refused_before_any_process_starts():
+    with pytest.raises(ValueError, match=r"unknown method 'no-such'.*available: default"):
+        precompile(["triad", "no-such"], jobs=2)
+
+
+@pytest.mark.parametrize("jobs", [0, -1])
+def test_jobs_below_one_are_refused(jobs):
+    with pytest.raises(ValueError, match=f"jobs must be at least 1, got {jobs}"):
+        precompile(["triad"], jobs=jobs)
+
+
+def test_nothing_is_compiled_without_numba_jit(monkeypatch):
+    monkeypatch.setenv("NUMBA_DISABLE_JIT", "1")
+    assert precompile(["triad"]) == {}
