@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import time
 from pathlib import Path
 
 import pytest
@@ -11,27 +10,6 @@ import pytest
 # No quick-start builds from the commands under test (each would compile for half a minute);
 # tests/kernels/test_aot.py switches them on in a temporary cache folder.
 os.environ["MARGTRACK_AOT"] = "0"
-
-
-def pytest_sessionstart(session: pytest.Session) -> None:
-    """Under pytest-xdist (``-n``), compile every method's kernels once before the workers
-    start, the methods shared among the CPUs (``margtrack.precompile``): otherwise each
-    worker compiles each kernel it meets, the same kernels at the same time. Nothing to do
-    on a warm cache (a second per method) or with ``NUMBA_DISABLE_JIT=1``."""
-    config = session.config
-    if hasattr(config, "workerinput") or not config.pluginmanager.has_plugin("dsession"):
-        return
-    from margtrack.precompile import precompile
-
-    start = time.perf_counter()
-    seconds = precompile()
-    if seconds:
-        reporter = config.pluginmanager.get_plugin("terminalreporter")
-        slowest = max(seconds, key=seconds.__getitem__)
-        reporter.write_line(
-            f"kernels of {len(seconds)} methods compiled or loaded in "
-            f"{time.perf_counter() - start:.0f} s (slowest: {slowest}, {seconds[slowest]:.0f} s)"
-        )
 
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
