@@ -11,7 +11,6 @@ import pytest
 # tests/kernels/test_aot.py switches them on in a temporary cache folder.
 os.environ["MARGTRACK_AOT"] = "0"
 
-
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 BROAD = DATA / "broad"
 XIO = DATA / "xio_lower_body"

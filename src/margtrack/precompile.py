@@ -71,7 +71,10 @@ def precompile(
     # spawn: a fresh interpreter (forking a process with numba's threads running is unsafe)
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
-        futures = {pool.submit(_compile_method, name): name for name in chosen}
+        # the recursive filters' kernels first (the long compilations), so that no process
+        # is left compiling one of them alone at the end
+        order = sorted(chosen, key=lambda name: getattr(methods.get(name), "kernel", None) is None)
+        futures = {pool.submit(_compile_method, name): name for name in order}
         for future in as_completed(futures):
             name = futures[future]
             try:
