@@ -42,8 +42,8 @@ def precompile(
     """Compile the kernels of the methods ``names`` (default: all) into numba's cache.
 
     ``jobs`` processes share the methods (default: the machine's CPUs, at most one per
-    method; 1 compiles in this process). ``progress(name, seconds)`` is called as each
-    method is done. Returns the seconds each method took in its process: compilation on a
+    kernel module; 1 compiles in this process). ``progress(name, seconds)`` is called as
+    each method is done. Returns the seconds each method took in its process: compilation on a
     cold cache, loading from the cache otherwise (a fraction of a second). Nothing is
     compiled with ``NUMBA_DISABLE_JIT=1`` (the kernels then run as Python): returns {}.
     A method that fails raises its error, after the others have finished.
@@ -59,36 +59,52 @@ def precompile(
         raise ValueError(f"jobs must be at least 1, got {jobs}")
     if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0") or not chosen:
         return {}
-    jobs = min(jobs, len(chosen))
+    # methods on the same kernels (bachmann and bachmann-accmag, robust and robust-offline)
+    # go to one process, one after the other: the second loads what the first compiled
+    kernels = {name: getattr(methods.get(name), "kernel", None) for name in chosen}
+    groups: dict[str, list[str]] = {}
+    for name, kernel in kernels.items():
+        groups.setdefault(kernel.__name__ if kernel is not None else name, []).append(name)
+    # the recursive filters' kernels first (the long compilations), so that no process is
+    # left compiling one of them alone at the end
+    tasks = sorted(groups.values(), key=lambda names: kernels[names[0]] is None)
+    jobs = min(jobs, len(tasks))
     seconds: dict[str, float] = {}
-    if jobs == 1:
-        for name in chosen:
-            seconds[name] = _compile_method(name)
-            if progress is not None:
-                progress(name, seconds[name])
-        return seconds
     failures: dict[str, BaseException] = {}
-    # spawn: a fresh interpreter (forking a process with numba's threads running is unsafe)
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
-        # the recursive filters' kernels first (the long compilations), so that no process
-        # is left compiling one of them alone at the end
-        order = sorted(chosen, key=lambda name: getattr(methods.get(name), "kernel", None) is None)
-        futures = {pool.submit(_compile_method, name): name for name in order}
-        for future in as_completed(futures):
-            name = futures[future]
-            try:
-                seconds[name] = future.result()
-            except Exception as exc:  # reported below, once every method has finished
-                failures[name] = exc
-                continue
+
+    def finished(names: list[str], outcome: dict[str, float] | BaseException) -> None:
+        if isinstance(outcome, BaseException):
+            failures[names[0]] = outcome
+            return
+        for name in names:
+            seconds[name] = outcome[name]
             if progress is not None:
                 progress(name, seconds[name])
+
+    if jobs == 1:
+        for names in tasks:
+            finished(names, _compile_group(names))
+    else:
+        # spawn: a fresh interpreter (forking a process with numba's threads is unsafe)
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
+            futures = {pool.submit(_compile_group, names): names for names in tasks}
+            for future in as_completed(futures):
+                try:
+                    outcome: dict[str, float] | BaseException = future.result()
+                except Exception as exc:  # reported below, once every method has finished
+                    outcome = exc
+                finished(futures[future], outcome)
     if failures:
         name, exc = next(iter(failures.items()))
         others = f" (and {', '.join(sorted(failures)[1:])})" if len(failures) > 1 else ""
         raise RuntimeError(f"compiling method {name!r} failed{others}: {exc}") from exc
     return {name: seconds[name] for name in chosen}
+
+
+def _compile_group(names: list[str]) -> dict[str, float]:
+    """:func:`_compile_method` for each of ``names`` in turn."""
+    return {name: _compile_method(name) for name in names}
 
 
 def _compile_method(name: str) -> float:
