@@ -73,3 +73,21 @@ def test_jobs_below_one_are_refused(jobs):
 def test_nothing_is_compiled_without_numba_jit(monkeypatch):
     monkeypatch.setenv("NUMBA_DISABLE_JIT", "1")
     assert precompile(["triad"]) == {}
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["compile", "triad", "no-such"], "unknown method 'no-such'"),
+        (["compile", "triad", "--jobs", "0"], "jobs must be at least 1, got 0"),
+    ],
+)
+def test_the_command_refuses_bad_arguments_in_a_line(args, message):
+    from typer.testing import CliRunner
+
+    from margtrack.cli import app
+
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2
+    assert message in result.output
+    assert "Traceback" not in result.output
