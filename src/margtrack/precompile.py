@@ -109,8 +109,21 @@ def _compile_group(names: list[str]) -> dict[str, float]:
 
 def _compile_method(name: str) -> float:
     """Use method ``name`` as programs do (module docstring); the seconds it took."""
-    # a quick-start build would serve the calls without compiling (kernels/aot.py)
+    # a quick-start build would serve the calls without compiling (kernels/aot.py): off
+    # while the method runs, then as it was (this may be the caller's process, jobs=1)
+    saved = os.environ.get("MARGTRACK_AOT")
     os.environ["MARGTRACK_AOT"] = "0"
+    try:
+        return _use_method(name)
+    finally:
+        if saved is None:
+            del os.environ["MARGTRACK_AOT"]
+        else:
+            os.environ["MARGTRACK_AOT"] = saved
+
+
+def _use_method(name: str) -> float:
+    """:func:`_compile_method`'s work: the calls that compile the method's kernels."""
     from margtrack import methods
     from margtrack.estimator.compiled import PARALLEL_MIN_SAMPLES
     from margtrack.sim import simulate_motion
