@@ -18,15 +18,16 @@ import numba.core.event as event
 from margtrack.precompile import _compile_method
 
 class Count(event.Listener):
-    n = 0
+    n = ended = 0
     def on_start(self, ev):
         Count.n += 1
     def on_end(self, ev):
-        pass
+        Count.ended += 1
 
 with event.install_listener("numba:compile", Count()):
     for name in sys.argv[1:]:
         _compile_method(name)
+assert Count.ended == Count.n, (Count.n, Count.ended)
 print("COMPILED", Count.n)
 """
 
