@@ -4,7 +4,9 @@ For each method (Bachmann's filter ``bachmann``, 000 Appendix A, and the default
 ``robust``), in one run on this machine:
 
 1. filter rates on one batch as the engine runs it, S = 100000 sensors x 4 frames: the
-   kernel's multi-sensor entry alone (``kernel.run_many``, threads over sensors) on
+   kernel's multi-sensor entry alone (the one ``run_into`` takes: ``kernel.run_lanes_many``,
+   sensors in lockstep blocks over threads, for a method that has it, else
+   ``kernel.run_many``, threads over sensors) on
    prepared arrays, the engine's hot path (``CompiledEstimator.run_into``: reused buffers,
    the state in place) and the public ``run`` (validation, input and state copies, new
    outputs); whether the kernel call runs on both cores (the CPU time of the threads other
@@ -130,7 +132,7 @@ def filter_rates(method: str, n_sensors: int = 100_000, n: int = 4) -> dict[str,
     for a in (gyr, acc, mag, *times):  # as run() passes them: the same specialisation
         a.flags.writeable = False
     parallel = n_sensors * n >= PARALLEL_MIN_SAMPLES
-    kernel = est.kernel.run_many if parallel else est.kernel.run
+    kernel = est._series_kernel(n_sensors, parallel)  # the entry run_into uses
     kernel(state.rows, state.clock, est._coefs, times[0], gyr, acc, mag, 3, q, x, flags)
     start = time.perf_counter()
     for t in times[1:]:
@@ -297,7 +299,7 @@ def profile_split(profiler: cProfile.Profile, frames: int) -> str:
                    if f.endswith(path) and n == name)
 
     kernel = sum(v[2] for (f, _, n), v in entries.items()
-                 if "/kernels/" in f and n in ("run", "run_many"))
+                 if "/kernels/" in f and n in ("run", "run_many", "run_lanes", "run_lanes_many"))
     run = (total("estimator/compiled.py", "run_into") + total("estimator/compiled.py",
                                                              "_run_arrays")
            or total("estimator/contract.py", "run"))

@@ -9,7 +9,9 @@ compile the same kernels at the same time. :func:`precompile` compiles them once
 each method in one process of a pool, the methods shared among the processes.
 
 A method is compiled by using it the way programs do, on a simulated recording: ``run``
-on one sensor and on several (the threaded kernel), and ``update`` sample by sample on one
+on one sensor and on several (the threaded kernel; for a method with lockstep kernels,
+``kernels/contract_lanes.py``, on enough sensors for those too, serial and threaded),
+and ``update`` sample by sample on one
 sensor (past the unit check, so the one-sample kernel too) and on several. Kernels called
 with other argument types (float32 arrays straight into a kernel, say) still compile on
 first use.
@@ -125,7 +127,7 @@ def _compile_method(name: str) -> float:
 def _use_method(name: str) -> float:
     """:func:`_compile_method`'s work: the calls that compile the method's kernels."""
     from margtrack import methods
-    from margtrack.estimator.compiled import PARALLEL_MIN_SAMPLES
+    from margtrack.estimator.compiled import LANES_MIN_SENSORS, PARALLEL_MIN_SAMPLES
     from margtrack.sim import simulate_motion
 
     start = time.perf_counter()
@@ -135,6 +137,10 @@ def _use_method(name: str) -> float:
     reps = -(-PARALLEL_MIN_SAMPLES // (_SENSORS * _SAMPLES))  # enough for the threaded kernel
     many = [np.tile(x, (_SENSORS, reps, 1)) for x in (gyr, acc, mag)]
     methods.create(name).run(gyr=many[0], acc=many[1], mag=many[2], rate_hz=100.0)
+    if hasattr(getattr(methods.get(name), "kernel", None), "run_lanes"):
+        for n_reps in (1, -(-PARALLEL_MIN_SAMPLES // (LANES_MIN_SENSORS * _SAMPLES))):
+            lanes = [np.tile(x, (LANES_MIN_SENSORS, n_reps, 1)) for x in (gyr, acc, mag)]
+            methods.create(name).run(gyr=lanes[0], acc=lanes[1], mag=lanes[2], rate_hz=100.0)
     if not getattr(methods.get(name), "offline", False):
         one = methods.create(name, rate_hz=100.0)
         for i in range(_SAMPLES):

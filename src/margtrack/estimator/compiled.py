@@ -40,6 +40,10 @@ P = TypeVar("P", bound=Params)
 #: in all: below it the threads' start and the parallel kernel's one-time compilation
 #: (tens of seconds per method) cost more than they save
 PARALLEL_MIN_SAMPLES = 100_000
+#: from this many sensors, a kernel module with lockstep entry points (``run_lanes``,
+#: ``run_lanes_many``) runs them in blocks vectorised across the sensors
+#: (``kernels/contract_lanes.py``), with the same results; fewer fill too few vector lanes
+LANES_MIN_SENSORS = 16
 
 
 class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
@@ -100,6 +104,14 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         return None if self._last_flags is None else self._last_flags.copy()
 
     # -- state ----------------------------------------------------------------------------
+    def _series_kernel(self, n_sensors: int, parallel: bool) -> Any:
+        """The kernel entry point that runs ``n_sensors`` sensors' series: in lockstep blocks
+        (LANES_MIN_SENSORS), over threads (``parallel``), or one sensor after the other."""
+        kernel = self.kernel
+        if n_sensors >= LANES_MIN_SENSORS and hasattr(kernel, "run_lanes"):
+            return kernel.run_lanes_many if parallel else kernel.run_lanes
+        return kernel.run_many if parallel and n_sensors > 1 else kernel.run
+
     def _new_rows(self, n_sensors: int) -> CompiledState:
         rows = np.zeros((n_sensors, self.kernel.N_ROW))
         rows[:, kc.K_Q] = 1.0
@@ -236,7 +248,7 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         has = (x.mag is not None) | (self._has_gyr_bit if x.gyr is not None else 0)
         # several sensors: shared among threads (compiled on first use of many sensors)
         parallel = n_sensors > 1 and n_sensors * n >= PARALLEL_MIN_SAMPLES
-        run = self.kernel.run_many if parallel else self.kernel.run
+        run = self._series_kernel(n_sensors, parallel)
         run(
             work.rows, work.clock, self._coefs, _read_only(np.ascontiguousarray(x.t)),
             _read_only(x.acc if x.gyr is None else x.gyr), _read_only(x.acc),
@@ -337,7 +349,7 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         has = (mag is not None) | (self._has_gyr_bit if gyr is not None else 0)
         if parallel is None:
             parallel = n_sensors * n >= PARALLEL_MIN_SAMPLES
-        run = self.kernel.run_many if parallel and n_sensors > 1 else self.kernel.run
+        run = self._series_kernel(n_sensors, parallel)
         run(
             state.rows, state.clock, self._coefs, _read_only(np.ascontiguousarray(t)),
             _read_only(acc if gyr is None else gyr), _read_only(acc),

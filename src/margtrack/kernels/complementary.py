@@ -54,9 +54,10 @@ from __future__ import annotations
 
 import math
 
-from margtrack.kernels import contract, rest_null
+from margtrack.kernels import contract, contract_lanes, rest_null
 from margtrack.kernels._quat import cross, mul
-from margtrack.kernels.jit import njit
+from margtrack.kernels.contract import N_SCOEF
+from margtrack.kernels.jit import njit, to_fixed_tuple
 from margtrack.kernels.screen import ACC_IGNORED, MAG_IGNORED
 from margtrack.kernels.triad import PARALLEL_SINE
 
@@ -112,6 +113,7 @@ X_CORR = 1  # 3
 X_NEW = 4
 X_CODE = 5
 X_NULL = 6  # 3, with a gyroscope only
+N_X = X_NULL + 3
 
 
 @njit(cache=True, inline="always")
@@ -193,9 +195,10 @@ def cofactors(mx, my, mz, nx, ny, nz):
 
 
 @njit(cache=True, inline="always")
-def _measure_reference(row, coef, ax, ay, az, bx, by, bz):
+def _measure_reference(st, o, lanes, coef, ax, ay, az, bx, by, bz):
     """Measure the dip at a usable pair (both non-zero, not parallel) and set the sensor's
-    field reference from it (deg and back, as ``frames.mag_reference``); no-op otherwise."""
+    field reference from it (deg and back, as ``frames.mag_reference``); no-op otherwise.
+    The row's slot j is ``st[o + j * lanes]`` (``contract_lanes``; 1 for a row)."""
     na = math.sqrt(ax * ax + ay * ay + az * az)
     nb = math.sqrt(bx * bx + by * by + bz * bz)
     cx, cy, cz = cross(ax, ay, az, bx, by, bz)
@@ -206,82 +209,121 @@ def _measure_reference(row, coef, ax, ay, az, bx, by, bz):
     sine = -(ax * bx + ay * by + az * bz) / (na * nb)
     dip = math.asin(min(max(sine, -1.0), 1.0))
     dip = min(max(dip, -DIP_LIMIT_RAD), DIP_LIMIT_RAD)
-    row[B_DIP] = dip
+    st[o + B_DIP * lanes] = dip
     rad = dip * (180.0 / math.pi) * (math.pi / 180.0)
     c, s = math.cos(rad), math.sin(rad)
     if coef[C_NED] > 0.5:
         nx, ny, nz = c, 0.0, s
     else:
         nx, ny, nz = 0.0, c, -s
-    row[B_REF], row[B_REF + 1], row[B_REF + 2] = nx, ny, nz
+    i_ref, i_minv = o + B_REF * lanes, o + B_MINV * lanes
+    st[i_ref], st[i_ref + lanes], st[i_ref + 2 * lanes] = nx, ny, nz
     usable, c00, c01, c02, c11, c12, c22, half = cofactors(
         coef[C_GRAV], coef[C_GRAV + 1], coef[C_GRAV + 2], nx, ny, nz
     )
-    row[B_MINV], row[B_MINV + 1], row[B_MINV + 2] = c00, c01, c02
-    row[B_MINV + 3], row[B_MINV + 4], row[B_MINV + 5], row[B_MINV + 6] = c11, c12, c22, half
-    row[B_HAS_REF] = 1.0 if usable else 0.0
+    for k, value in enumerate((c00, c01, c02, c11, c12, c22, half)):
+        st[i_minv + k * lanes] = value
+    st[o + B_HAS_REF * lanes] = 1.0 if usable else 0.0
 
 
 @njit(cache=True, inline="always")
 def _start(row, coef, first, qw, qx, qy, qz):
     """(Re)start at q: fresh orientation and correction, the heading awaited from the
     field; a restart (not ``first``) keeps dip and null and raises the gain."""
-    row[B_Q], row[B_Q + 1], row[B_Q + 2], row[B_Q + 3] = qw, qx, qy, qz
-    row[B_STEP] = row[B_STEP + 1] = row[B_STEP + 2] = 0.0
-    row[B_PHI] = math.nan
-    row[B_SINCE] = -1.0 if first else 0.0
-    row[B_AWAIT] = 1.0
-    row[B_TURN] = coef[C_TURN]
+    _start_at(row, 0, 1, coef, first, qw, qx, qy, qz)
+
+
+@njit(cache=True, inline="always")
+def _start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
+    """:func:`_start` on the row at ``st[o + j * lanes]`` (``contract_lanes``)."""
+    i_q, i_step = o + B_Q * lanes, o + B_STEP * lanes
+    st[i_q], st[i_q + lanes], st[i_q + 2 * lanes], st[i_q + 3 * lanes] = qw, qx, qy, qz
+    st[i_step] = st[i_step + lanes] = st[i_step + 2 * lanes] = 0.0
+    st[o + B_PHI * lanes] = math.nan
+    st[o + B_SINCE * lanes] = -1.0 if first else 0.0
+    st[o + B_AWAIT * lanes] = 1.0
+    st[o + B_TURN * lanes] = coef[C_TURN]
     if first:
-        row[B_DIP] = math.nan
+        st[o + B_DIP * lanes] = math.nan
         for k in range(3):
-            row[B_REF + k] = math.nan
+            st[o + (B_REF + k) * lanes] = math.nan
         for k in range(7):
-            row[B_MINV + k] = 0.0
-        row[B_HAS_REF] = 0.0
-        rest_null.fresh_one(row, B_NULL)
+            st[o + (B_MINV + k) * lanes] = 0.0
+        st[o + B_HAS_REF * lanes] = 0.0
+        rest_null.fresh_one(st, o + B_NULL * lanes, lanes)
 
 
 @njit(cache=True, inline="always")
 def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
     """One screened sample of 000's Fig. 5 (module docstring); returns the flag bits."""
-    qw, qx, qy, qz = row[B_Q], row[B_Q + 1], row[B_Q + 2], row[B_Q + 3]
-    if row[B_TURN] != 0.0:  # the start in the frame of explicit reference vectors
-        row[B_TURN] = 0.0
+    return _step_at(row, 0, 1, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, 0,
+                    x_out, 0, 1, False)
+
+
+@njit(cache=True, inline="always")
+def _rare_at(st, o, lanes, coef, has_mag, m0, m1, m2):
+    """Whether a sample takes one of :func:`_step_at`'s rare branches (the start's turn onto
+    explicit references, measuring the field reference, setting the heading): those run
+    in ``contract_lanes``' scalar pass, the rest vectorised."""
+    if st[o + B_TURN * lanes] != 0.0:
+        return True
+    fixed = coef[C_FIXED_REF] > 0.5
+    if not fixed and has_mag and math.isnan(st[o + B_DIP * lanes]):
+        return True
+    has_ref = coef[C_HAS_REF] > 0.5 if fixed else st[o + B_HAS_REF * lanes] > 0.5
+    return st[o + B_AWAIT * lanes] != 0.0 and has_mag and has_ref
+
+
+@njit(cache=True, inline="always")
+def _step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, qa, qo, xa,
+             xo, outs, steady):
+    """:func:`_step` on the row at ``st[o + j * lanes]``, writing q to ``qa[qo + k * outs]``
+    and the extra outputs to ``xa[xo + k * outs]``; ``steady`` (a constant): the caller
+    knows :func:`_rare_at` is False, so the rare branches are left out of the code."""
+    i_q, i_step, i_phi = o + B_Q * lanes, o + B_STEP * lanes, o + B_PHI * lanes
+    qw, qx, qy, qz = st[i_q], st[i_q + lanes], st[i_q + 2 * lanes], st[i_q + 3 * lanes]
+    if not steady and st[o + B_TURN * lanes] != 0.0:
+        # the start in the frame of explicit reference vectors
+        st[o + B_TURN * lanes] = 0.0
         t = C_TURN_ARC if not has_mag or (m0 == 0.0 and m1 == 0.0 and m2 == 0.0) else C_TURN_TRIAD
         qw, qx, qy, qz = mul(coef[t], coef[t + 1], coef[t + 2], coef[t + 3], qw, qx, qy, qz)
     # the correction schedule: sensor s's turns are cycles c with (c - phase) % n == 0
     interval = int(coef[C_INTERVAL])
-    cycle = int(row[B_CYCLE])
-    row[B_CYCLE] = cycle + 1.0
+    cycle = int(st[o + B_CYCLE * lanes])
+    st[o + B_CYCLE * lanes] = cycle + 1.0
     new = True  # every sample with the default interval 1 (no integer division then)
     if interval != 1:
-        phase = int(row[B_INDEX]) % interval if coef[C_ROUND_ROBIN] > 0.5 else 0
+        # (max: a divisor known to be >= 1, which the vectoriser may divide by in any lane)
+        interval = max(interval, 1)
+        phase = int(st[o + B_INDEX * lanes]) % interval if coef[C_ROUND_ROBIN] > 0.5 else 0
         new = (cycle - phase) % interval == 0
     use_gyr = coef[C_USE_GYR] > 0.5
     if use_gyr:  # the gyro null from the still start (000 Appendix B step 1)
-        nx, ny, nz = rest_null.step_one(
-            row, B_NULL, coef, C_NULL, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, dt
+        nx, ny, nz = rest_null.step_at(
+            st, o + B_NULL * lanes, lanes, coef, C_NULL, g0, g1, g2, a0, a1, a2, m0, m1, m2,
+            has_mag, dt,
         )
         g0, g1, g2 = g0 - nx, g1 - ny, g2 - nz
-        x_out[X_NULL], x_out[X_NULL + 1], x_out[X_NULL + 2] = nx, ny, nz
+        xa[xo + X_NULL * outs], xa[xo + (X_NULL + 1) * outs] = nx, ny
+        xa[xo + (X_NULL + 2) * outs] = nz
     mx, my, mz = coef[C_GRAV], coef[C_GRAV + 1], coef[C_GRAV + 2]
     # the field reference: given, or measured at the sensor's first usable sample
     fixed = coef[C_FIXED_REF] > 0.5
-    if not fixed and has_mag and math.isnan(row[B_DIP]):
-        _measure_reference(row, coef, a0, a1, a2, m0, m1, m2)
-    ref = coef if fixed else row
-    o = C_REF if fixed else B_REF
-    has_ref = ref[C_HAS_REF if fixed else B_HAS_REF] > 0.5
-    nx, ny, nz = ref[o], ref[o + 1], ref[o + 2]
+    if not steady and not fixed and has_mag and math.isnan(st[o + B_DIP * lanes]):
+        _measure_reference(st, o, lanes, coef, a0, a1, a2, m0, m1, m2)
+    i_ref, i_minv = o + B_REF * lanes, o + B_MINV * lanes
+    has_ref = coef[C_HAS_REF] > 0.5 if fixed else st[o + B_HAS_REF * lanes] > 0.5
+    nx = coef[C_REF] if fixed else st[i_ref]
+    ny = coef[C_REF + 1] if fixed else st[i_ref + lanes]
+    nz = coef[C_REF + 2] if fixed else st[i_ref + 2 * lanes]
     flag = OK
-    if row[B_AWAIT] != 0.0 and has_mag and has_ref:
+    if not steady and st[o + B_AWAIT * lanes] != 0.0 and has_mag and has_ref:
         qw, qx, qy, qz, awaiting = _set_heading(
             qw, qx, qy, qz, m0, m1, m2, mx, my, mz, nx, ny, nz
         )
-        row[B_AWAIT] = 1.0 if awaiting else 0.0
-    vx, vy, vz = row[B_STEP], row[B_STEP + 1], row[B_STEP + 2]
-    phi = row[B_PHI]
+        st[o + B_AWAIT * lanes] = 1.0 if awaiting else 0.0
+    vx, vy, vz = st[i_step], st[i_step + lanes], st[i_step + 2 * lanes]
+    phi = st[i_phi]
     if new:
         # steps 1-6 of 000's Fig. 5, in the earth frame (module docstring)
         na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
@@ -297,9 +339,13 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
                     flag = NO_FIELD_REFERENCE
                 elif nb > 0.0:
                     rho = coef[C_MAG_WEIGHT]
-                    mi = C_MINV if fixed else B_MINV
-                    c00, c01, c02 = ref[mi], ref[mi + 1], ref[mi + 2]
-                    c11, c12, c22, half_det_inv = ref[mi + 3], ref[mi + 4], ref[mi + 5], ref[mi + 6]
+                    c00 = coef[C_MINV] if fixed else st[i_minv]
+                    c01 = coef[C_MINV + 1] if fixed else st[i_minv + lanes]
+                    c02 = coef[C_MINV + 2] if fixed else st[i_minv + 2 * lanes]
+                    c11 = coef[C_MINV + 3] if fixed else st[i_minv + 3 * lanes]
+                    c12 = coef[C_MINV + 4] if fixed else st[i_minv + 4 * lanes]
+                    c22 = coef[C_MINV + 5] if fixed else st[i_minv + 5 * lanes]
+                    half_det_inv = coef[C_MINV + 6] if fixed else st[i_minv + 6 * lanes]
                     bx, by, bz = _rotate(qw, qx, qy, qz, m0 / nb, m1 / nb, m2 / nb)
                     ex, ey, ez = bx - nx, by - ny, bz - nz  # R (b - b̂) (eq. 16)
                     phi += rho * rho * (ex * ex + ey * ey + ez * ez)
@@ -318,18 +364,18 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
             flag = ZERO_ACC
             vx, vy, vz = 0.0, 0.0, 0.0
             phi = math.nan
-        row[B_STEP], row[B_STEP + 1], row[B_STEP + 2] = vx, vy, vz
-        row[B_PHI] = phi
+        st[i_step], st[i_step + lanes], st[i_step + 2 * lanes] = vx, vy, vz
+        st[i_phi] = phi
     gain = coef[C_GAIN]
     k = gain
-    since = row[B_SINCE] if coef[C_RESTART_GAIN] > gain else -1.0
+    since = st[o + B_SINCE * lanes] if coef[C_RESTART_GAIN] > gain else -1.0
     if since >= 0.0:  # after a restart: the mean of the measurements since (1/t)
         since += dt
         k = 1.0 / (since + 1.0 / coef[C_RESTART_GAIN])
         if k <= gain:
             k = gain
             since = -1.0
-    row[B_SINCE] = since
+    st[o + B_SINCE * lanes] = since
     # q̇_ε = k (0, Δv_E) ⊗ q̂, which is k q̂ ⊗ (0, Δv_full) = k Δq_full (eqs. 24-25)
     ew, ex, ey, ez = mul(0.0, vx, vy, vz, qw, qx, qy, qz)
     dw, dx, dy, dz = k * ew, k * ex, k * ey, k * ez
@@ -345,13 +391,14 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
         qw, qx, qy, qz = _unit_or_previous(
             qw + dt * dw, qx + dt * dx, qy + dt * dy, qz + dt * dz, qw, qx, qy, qz
         )
-    row[B_Q], row[B_Q + 1], row[B_Q + 2], row[B_Q + 3] = qw, qx, qy, qz
-    q_out[0], q_out[1], q_out[2], q_out[3] = qw, qx, qy, qz
+    st[i_q], st[i_q + lanes], st[i_q + 2 * lanes], st[i_q + 3 * lanes] = qw, qx, qy, qz
+    qa[qo], qa[qo + outs], qa[qo + 2 * outs], qa[qo + 3 * outs] = qw, qx, qy, qz
     two_k = 2.0 * k
-    x_out[X_PHI] = phi
-    x_out[X_CORR], x_out[X_CORR + 1], x_out[X_CORR + 2] = two_k * vx, two_k * vy, two_k * vz
-    x_out[X_NEW] = 1.0 if new else 0.0
-    x_out[X_CODE] = flag
+    xa[xo + X_PHI * outs] = phi
+    xa[xo + X_CORR * outs], xa[xo + (X_CORR + 1) * outs] = two_k * vx, two_k * vy
+    xa[xo + (X_CORR + 2) * outs] = two_k * vz
+    xa[xo + X_NEW * outs] = 1.0 if new else 0.0
+    xa[xo + X_CODE * outs] = flag
     if flag == ZERO_ACC:
         return ACC_IGNORED
     if flag == NO_FIELD_REFERENCE:
@@ -363,17 +410,24 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
 def _hold(row, coef, x_out):
     """Outputs of a held sample (a sensor waiting for a usable sample): the held correction
     (none before the first start), no new one. The sample counts in the schedule."""
-    row[B_CYCLE] += 1.0
-    started = row[contract.K_STARTS] > 0.0
+    _hold_at(row, 0, 1, coef, x_out, 0, 1)
+
+
+@njit(cache=True, inline="always")
+def _hold_at(st, o, lanes, coef, xa, xo, outs):
+    """:func:`_hold` on the row at ``st[o + j * lanes]``, outputs at ``xa[xo + k * outs]``."""
+    st[o + B_CYCLE * lanes] += 1.0
+    started = st[o + contract.K_STARTS * lanes] > 0.0
     two_k = 2.0 * coef[C_GAIN]
-    x_out[X_PHI] = row[B_PHI] if started else math.nan
+    xa[xo + X_PHI * outs] = st[o + B_PHI * lanes] if started else math.nan
     for k in range(3):
-        x_out[X_CORR + k] = two_k * row[B_STEP + k] if started else 0.0
-    x_out[X_NEW] = 0.0
-    x_out[X_CODE] = OK
+        xa[xo + (X_CORR + k) * outs] = two_k * st[o + (B_STEP + k) * lanes] if started else 0.0
+    xa[xo + X_NEW * outs] = 0.0
+    xa[xo + X_CODE * outs] = OK
     if coef[C_USE_GYR] > 0.5:
         for k in range(3):
-            x_out[X_NULL + k] = row[B_NULL + rest_null.RN_NULL + k] if started else 0.0
+            i_null = o + (B_NULL + rest_null.RN_NULL + k) * lanes
+            xa[xo + (X_NULL + k) * outs] = st[i_null] if started else 0.0
 
 
 @njit(cache=True)
@@ -388,6 +442,35 @@ def run_many(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out)
     """S sensors' N samples, shared among threads (``contract.run_series_parallel``)."""
     contract.run_series_parallel(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
                                  q_out, x_out, flags_out)
+
+
+@njit(cache=True, error_model="numpy", _nrt=False, vector_width=contract_lanes.VECTOR_WIDTH)
+def lanes_block(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
+                flags_out):
+    """One block of sensors in lockstep, vectorised across them (``contract_lanes.block``)."""
+    # (plain global names: numba sees them as the constants to_fixed_tuple needs)
+    scoef, coef = to_fixed_tuple(coefs, N_SCOEF), to_fixed_tuple(coefs[N_SCOEF:], N_COEF)
+    contract_lanes.block(_start_at, _step_at, _hold_at, _rare_at, N_ROW, N_X, st, rows, s0, scoef,
+                         coef, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out)
+
+
+#: slots per lane of :func:`lanes_block`'s buffer
+LANES_WIDTH = N_ROW + contract_lanes.N_B + N_X
+
+
+@njit(cache=True, nogil=True)
+def run_lanes(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """:func:`run` by blocks of sensors in lockstep (``contract_lanes.run_blocks``); the same
+    results."""
+    contract_lanes.run_blocks(lanes_block, LANES_WIDTH, rows, clock, coefs, t, gyr, acc, mag, has,
+                              q_out, x_out, flags_out)
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def run_lanes_many(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """:func:`run_lanes` with the blocks shared among threads; the same results."""
+    contract_lanes.run_blocks_parallel(lanes_block, LANES_WIDTH, rows, clock, coefs, t, gyr, acc,
+                                       mag, has, q_out, x_out, flags_out)
 
 
 @njit(cache=True)

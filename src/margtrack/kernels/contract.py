@@ -18,6 +18,10 @@ and wraps :func:`run_series`, :func:`update_samples`, :func:`update_one` and
 caches one specialisation per method). All go through the same :func:`_sample`, so N
 updates equal one run.
 
+``contract_lanes`` runs the same samples for blocks of sensors in lockstep, vectorised
+across them, with the same results, for a method that also provides its functions in
+strided form.
+
 Contract slots of a row: ``K_READY`` (1: started), ``K_STARTS`` (how many starts),
 ``K_Q`` (4: the last output), ``K_SCREEN`` (the screening state, ``screen.N_SCREEN``).
 Screening coefficients ``scoef`` are ``screen``'s plus ``C_NED`` and ``C_MAG_REQUIRED``.

@@ -41,11 +41,12 @@ from __future__ import annotations
 
 import math
 
-from margtrack.kernels import contract, screen
+from margtrack.kernels import contract, contract_lanes, screen
 from margtrack.kernels._quat import exp_half, mul
+from margtrack.kernels.contract import N_SCOEF
 from margtrack.kernels.gradient_objective import gradient_term, rotate, rotate_inverse
 from margtrack.kernels.gradient_objective import objective_jacobian as objective_jacobian
-from margtrack.kernels.jit import njit
+from margtrack.kernels.jit import njit, to_fixed_tuple
 
 #: ``ignored`` flag bits: no accelerometer correction (zero vector, the screening's "no
 #: measurement"; the sample is gyro-only, without a magnetometer term either)
@@ -137,15 +138,26 @@ def _outputs(coef, ow, ox, oy, oz, a0, a1, a2, x_out):
 def _start(row, coef, first, qw, qx, qy, qz):
     """(Re)start at q (output frame): the NWU orientation ``c* ⊗ q``. The field reference
     and the held samples belong to the sensors and the field: kept (a fresh row has none)."""
-    c = C_TO_FRAME
-    w, x, y, z = mul(coef[c], -coef[c + 1], -coef[c + 2], -coef[c + 3], qw, qx, qy, qz)
-    row[G_Q], row[G_Q + 1], row[G_Q + 2], row[G_Q + 3] = w, x, y, z
+    _start_at(row, 0, 1, coef, first, qw, qx, qy, qz)
 
 
 @njit(cache=True, inline="always")
-def _advance(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out):
-    """One screened sample: correction, propagation and fusion; q_out (4,) the new output
-    orientation; returns the ``ignored`` bits (:func:`_step` returns them as ``Flag`` bits).
+def _start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
+    """:func:`_start` on the row whose slot j is ``st[o + j * lanes]`` (``contract_lanes``)."""
+    c = C_TO_FRAME
+    qw, qx, qy, qz = mul(coef[c], -coef[c + 1], -coef[c + 2], -coef[c + 3], qw, qx, qy, qz)
+    i = o + G_Q * lanes
+    st[i], st[i + lanes], st[i + 2 * lanes], st[i + 3 * lanes] = qw, qx, qy, qz
+
+
+@njit(cache=True, inline="always")
+def _advance(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, qa, qo, qs):
+    """One screened sample: correction, propagation and fusion; returns the ``ignored``
+    bits (:func:`_step` returns them as ``Flag`` bits).
+
+    The row's slot j is ``st[o + j * lanes]`` (``(row, 0, 1)`` for one sensor's row, a lane of
+    interleaved rows in ``contract_lanes``); the new output orientation goes to
+    ``qa[qo + k * qs]``, k = 0..3.
 
     rad/s, m/s², any field unit; an all-zero acc or field is "no measurement" (that
     correction is skipped); ``dt = 0`` integrates nothing and makes no correction step
@@ -160,7 +172,8 @@ def _advance(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out):
     ``∇f / |∇f|``, would depend on the frame. One internal frame makes every output frame
     the same rotation and the full-vector variant equal to ahrs.filters.Madgwick.
     """
-    w, x, y, z = row[G_Q], row[G_Q + 1], row[G_Q + 2], row[G_Q + 3]
+    i_q, i_ref = o + G_Q * lanes, o + G_MAG_REF * lanes
+    w, x, y, z = st[i_q], st[i_q + lanes], st[i_q + 2 * lanes], st[i_q + 3 * lanes]
     mode = coef[C_MAG_MODE]
     bits = 0
     # -- correction: gradient of the stacked objectives at the prior q (NWU) ---------------
@@ -204,13 +217,13 @@ def _advance(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out):
                 # in the earth frame, h = q ⊗ m̂ ⊗ q*, b_x = |h_horizontal|, b_z = h_z (his
                 # eqs. 45-46), or (FULL_FIXED) the first such b, kept
                 mx, my, mz = mx / nm, my / nm, mz / nm
-                if mode == FULL_ADAPTIVE or row[G_MAG_REF] <= 0.0:
+                if mode == FULL_ADAPTIVE or st[i_ref] <= 0.0:
                     hx, hy, hz = rotate(w, x, y, z, mx, my, mz)
                     dx, dz = math.sqrt(hx * hx + hy * hy), hz
                     if mode == FULL_FIXED:
-                        row[G_MAG_REF], row[G_MAG_REF + 1] = dx, dz
+                        st[i_ref], st[i_ref + lanes] = dx, dz
                 else:
-                    dx, dz = row[G_MAG_REF], row[G_MAG_REF + 1]
+                    dx, dz = st[i_ref], st[i_ref + lanes]
             if use:
                 t0, t1, t2, t3 = gradient_term(w, x, y, z, dx, 0.0, dz, mx, my, mz)
                 s0, s1, s2, s3 = s0 + t0, s1 + t1, s2 + t2, s3 + t3
@@ -246,13 +259,14 @@ def _advance(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out):
         pw, px, py, pz = w + dw * dt, x + dx_ * dt, y + dy_ * dt, z + dz_ * dt
     norm = math.sqrt(pw * pw + px * px + py * py + pz * pz)
     w, x, y, z = pw / norm, px / norm, py / norm, pz / norm
-    row[G_Q], row[G_Q + 1], row[G_Q + 2], row[G_Q + 3] = w, x, y, z
-    row[G_ACC_HELD], row[G_ACC_HELD + 1], row[G_ACC_HELD + 2] = a0, a1, a2
+    st[i_q], st[i_q + lanes], st[i_q + 2 * lanes], st[i_q + 3 * lanes] = w, x, y, z
+    i_acc, i_mag = o + G_ACC_HELD * lanes, o + G_MAG_HELD * lanes
+    st[i_acc], st[i_acc + lanes], st[i_acc + 2 * lanes] = a0, a1, a2
     if has_mag:
-        row[G_MAG_HELD], row[G_MAG_HELD + 1], row[G_MAG_HELD + 2] = m0, m1, m2
+        st[i_mag], st[i_mag + lanes], st[i_mag + 2 * lanes] = m0, m1, m2
     # -- the orientation in the output frame ---------------------------------------------------
     c = C_TO_FRAME
-    q_out[0], q_out[1], q_out[2], q_out[3] = mul(
+    qa[qo], qa[qo + qs], qa[qo + 2 * qs], qa[qo + 3 * qs] = mul(
         coef[c], coef[c + 1], coef[c + 2], coef[c + 3], w, x, y, z
     )
     return bits
@@ -269,7 +283,7 @@ def _flags(bits):
 @njit(cache=True, inline="always")
 def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
     """:func:`_advance` and the extra outputs of the new orientation (``update``)."""
-    bits = _advance(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out)
+    bits = _advance(row, 0, 1, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, 0, 1)
     _outputs(coef, q_out[0], q_out[1], q_out[2], q_out[3], a0, a1, a2, x_out)
     x_out[X_IGNORED] = bits
     return _flags(bits)
@@ -279,9 +293,20 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
 def _step_lean(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_run):
     """:func:`_advance` keeping only what the extra outputs are computed from (``run``):
     x_run (N_LEAN,) the screened accelerometer sample and the ``ignored`` bits."""
-    bits = _advance(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out)
-    x_run[L_ACC], x_run[L_ACC + 1], x_run[L_ACC + 2] = a0, a1, a2
-    x_run[L_IGNORED] = bits
+    return _step_lean_at(row, 0, 1, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag,
+                         q_out, 0, x_run, 0, 1, False)
+
+
+@njit(cache=True, inline="always")
+def _step_lean_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, qa, qo,
+                  xa, xo, outs, steady=False):
+    """:func:`_step_lean` on the row at ``st[o + j * lanes]``, writing output k of q to
+    ``qa[qo + k * outs]`` and of x_run to ``xa[xo + k * outs]`` (``contract_lanes``; the
+    step has no rare branch, so ``steady`` changes nothing)."""
+    bits = _advance(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, qa, qo,
+                    outs)
+    xa[xo + L_ACC * outs], xa[xo + (L_ACC + 1) * outs], xa[xo + (L_ACC + 2) * outs] = a0, a1, a2
+    xa[xo + L_IGNORED * outs] = bits
     return _flags(bits)
 
 
@@ -297,8 +322,20 @@ def _hold(row, coef, x_out):
 @njit(cache=True, inline="always")
 def _hold_lean(row, coef, x_run):
     """:func:`_hold` for ``run``: no accelerometer sample, no ``ignored`` bits."""
+    _hold_lean_at(row, 0, 1, coef, x_run, 0, 1)
+
+
+@njit(cache=True, inline="always")
+def _rare_at(st, o, lanes, coef, has_mag, m0, m1, m2):
+    """No sample takes a rare branch of the step (``contract_lanes``)."""
+    return False
+
+
+@njit(cache=True, inline="always")
+def _hold_lean_at(st, o, lanes, coef, xa, xo, outs):
+    """:func:`_hold_lean` writing output k to ``xa[xo + k * outs]`` (``contract_lanes``)."""
     for k in range(N_LEAN):
-        x_run[k] = 0.0
+        xa[xo + k * outs] = 0.0
 
 
 @njit(cache=True)
@@ -338,6 +375,36 @@ def run_many(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out)
     (S, N, N_LEAN) for :func:`expand`."""
     contract.run_series_parallel(_start, _step_lean, _hold_lean, rows, clock, coefs, t, gyr, acc,
                                  mag, _has(coefs, has), q_out, x_out, flags_out)
+
+
+@njit(cache=True, error_model="numpy", _nrt=False, vector_width=contract_lanes.VECTOR_WIDTH)
+def lanes_block(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
+                flags_out):
+    """One block of sensors in lockstep, vectorised across them (``contract_lanes.block``)."""
+    # (plain global names: numba sees them as the constants to_fixed_tuple needs)
+    scoef, coef = to_fixed_tuple(coefs, N_SCOEF), to_fixed_tuple(coefs[N_SCOEF:], N_COEF)
+    contract_lanes.block(_start_at, _step_lean_at, _hold_lean_at, _rare_at, N_ROW, N_LEAN, st, rows,
+                         s0, scoef, coef, dts, ks, tflags, gyr, acc, mag, _has(coefs, has), q_out,
+                         x_out, flags_out)
+
+
+#: slots per lane of :func:`lanes_block`'s buffer
+LANES_WIDTH = N_ROW + contract_lanes.N_B + N_LEAN
+
+
+@njit(cache=True, nogil=True)
+def run_lanes(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """:func:`run` by blocks of sensors in lockstep (``contract_lanes.run_blocks``); the same
+    results."""
+    contract_lanes.run_blocks(lanes_block, LANES_WIDTH, rows, clock, coefs, t, gyr, acc, mag, has,
+                              q_out, x_out, flags_out)
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def run_lanes_many(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """:func:`run_lanes` with the blocks shared among threads; the same results."""
+    contract_lanes.run_blocks_parallel(lanes_block, LANES_WIDTH, rows, clock, coefs, t, gyr, acc,
+                                       mag, has, q_out, x_out, flags_out)
 
 
 @njit(cache=True)

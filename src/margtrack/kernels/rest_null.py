@@ -54,11 +54,12 @@ def _angle_cos(ax, ay, az, bx, by, bz):
 
 
 @njit(cache=True, inline="always")
-def fresh_one(r, o):
-    """A null block at ``r[o:o + N_REST_NULL]`` that has seen nothing (still, no null)."""
+def fresh_one(r, o, lanes=1):
+    """A null block at ``r[o + j * lanes]``, j < N_REST_NULL, that has seen nothing (still,
+    no null)."""
     for k in range(N_REST_NULL):
-        r[o + k] = 0.0
-    r[o + RN_STILL] = 1.0
+        r[o + k * lanes] = 0.0
+    r[o + RN_STILL * lanes] = 1.0
 
 
 @njit(cache=True, inline="always")
@@ -74,50 +75,61 @@ def step_one(r, o, c, co, gx, gy, gz, ax, ay, az, mx, my, mz, has_mag, dt):
     test; a rate beyond the maximum (or non-finite) is left out without ending the still
     start. With a minimum <= 0 the block is left alone and the null is 0.
     """
+    return step_at(r, o, 1, c, co, gx, gy, gz, ax, ay, az, mx, my, mz, has_mag, dt)
+
+
+@njit(cache=True, inline="always")
+def step_at(r, o, lanes, c, co, gx, gy, gz, ax, ay, az, mx, my, mz, has_mag, dt):
+    """:func:`step_one` with the block's slot j at ``r[o + j * lanes]`` (a lane of
+    interleaved rows, ``contract_lanes``)."""
     min_rest_s = c[co + RC_MIN_REST]
     if not min_rest_s > 0.0:
         return 0.0, 0.0, 0.0
+    i_total, i_acc, i_mag = o + RN_TOTAL * lanes, o + RN_ACC_SUM * lanes, o + RN_MAG_SUM * lanes
+    i_count, i_still, i_null = o + RN_COUNT * lanes, o + RN_STILL * lanes, o + RN_NULL * lanes
     max_rate = c[co + RC_MAX_RATE]
     sane = abs(gx) <= max_rate and abs(gy) <= max_rate
     sane = sane and abs(gz) <= max_rate
-    if r[o + RN_STILL] != 0.0 and sane:
-        count = r[o + RN_COUNT]
+    if r[i_still] != 0.0 and sane:
+        count = r[i_count]
         if count == 0.0:
             ok = True
         else:
             tol = c[co + RC_GYR_TOL]
-            ex = gx - r[o + RN_TOTAL] / count
-            ey = gy - r[o + RN_TOTAL + 1] / count
-            ez = gz - r[o + RN_TOTAL + 2] / count
+            ex = gx - r[i_total] / count
+            ey = gy - r[i_total + lanes] / count
+            ez = gz - r[i_total + 2 * lanes] / count
             ok = ex * ex + ey * ey + ez * ez <= tol * tol
             ok = ok and _angle_cos(
-                ax, ay, az, r[o + RN_ACC_SUM], r[o + RN_ACC_SUM + 1], r[o + RN_ACC_SUM + 2]
+                ax, ay, az, r[i_acc], r[i_acc + lanes], r[i_acc + 2 * lanes]
             ) >= c[co + RC_ACC_COS]
             if has_mag:
                 ok = ok and _angle_cos(
-                    mx, my, mz, r[o + RN_MAG_SUM], r[o + RN_MAG_SUM + 1], r[o + RN_MAG_SUM + 2]
+                    mx, my, mz, r[i_mag], r[i_mag + lanes], r[i_mag + 2 * lanes]
                 ) >= c[co + RC_MAG_COS]
         if ok:
-            r[o + RN_TOTAL] += gx
-            r[o + RN_TOTAL + 1] += gy
-            r[o + RN_TOTAL + 2] += gz
-            r[o + RN_ACC_SUM] += ax
-            r[o + RN_ACC_SUM + 1] += ay
-            r[o + RN_ACC_SUM + 2] += az
+            r[i_total] += gx
+            r[i_total + lanes] += gy
+            r[i_total + 2 * lanes] += gz
+            r[i_acc] += ax
+            r[i_acc + lanes] += ay
+            r[i_acc + 2 * lanes] += az
             if has_mag:
-                r[o + RN_MAG_SUM] += mx
-                r[o + RN_MAG_SUM + 1] += my
-                r[o + RN_MAG_SUM + 2] += mz
-            r[o + RN_COUNT] = count + 1.0
-            r[o + RN_DURATION] += dt
+                r[i_mag] += mx
+                r[i_mag + lanes] += my
+                r[i_mag + 2 * lanes] += mz
+            r[i_count] = count + 1.0
+            r[o + RN_DURATION * lanes] += dt
         else:
-            r[o + RN_STILL] = 0.0
-            if r[o + RN_DURATION] < min_rest_s:  # too short to trust: no null
-                r[o + RN_TOTAL] = r[o + RN_TOTAL + 1] = r[o + RN_TOTAL + 2] = 0.0
-        count = r[o + RN_COUNT]
-        for k in range(3):
-            r[o + RN_NULL + k] = r[o + RN_TOTAL + k] / count if count > 0.0 else 0.0
-    return r[o + RN_NULL], r[o + RN_NULL + 1], r[o + RN_NULL + 2]
+            r[i_still] = 0.0
+            if r[o + RN_DURATION * lanes] < min_rest_s:  # too short to trust: no null
+                r[i_total] = r[i_total + lanes] = r[i_total + 2 * lanes] = 0.0
+        count = r[i_count]
+        # written out: a loop inside a branch stops the vectoriser
+        r[i_null] = r[i_total] / count if count > 0.0 else 0.0
+        r[i_null + lanes] = r[i_total + lanes] / count if count > 0.0 else 0.0
+        r[i_null + 2 * lanes] = r[i_total + 2 * lanes] / count if count > 0.0 else 0.0
+    return r[i_null], r[i_null + lanes], r[i_null + 2 * lanes]
 
 
 @njit(cache=True)

@@ -150,8 +150,23 @@ def screen_one_k(coef, sc, step, k_ref, time_flags, g0, g1, g2, a0, a1, a2, m0, 
     accelerometer's direction). Bad rates come back as the last good one, an unusable
     acceleration or field as the zero sentinel. ``k_ref``: ``ref_gain(step)``.
     """
+    return screen_at(coef, sc, 0, 1, step, k_ref, time_flags, g0, g1, g2, a0, a1, a2, m0, m1,
+                     m2, has_mag, has_gyr)
+
+
+@njit(cache=True, inline="always")
+def screen_at(coef, st, o, lanes, step, k_ref, time_flags, g0, g1, g2, a0, a1, a2, m0, m1, m2,
+              has_mag, has_gyr):
+    """:func:`screen_one_k` with the screening state's slot j at ``st[o + j * lanes]``.
+
+    ``(sc, 0, 1)`` is one sensor's state array; ``(st, lane, LANES)`` a lane of a block of
+    sensors whose states are interleaved (``contract_lanes``): there the compiler can
+    vectorise the screening across sensors, since every access is a constant offset from
+    the lane.
+    """
     f = time_flags
     skip = (f & CLOCK) != 0 and (f & GAP) == 0
+    i_gyr, i_acc = o + S_LAST_GYR * lanes, o + S_ACC_PREV * lanes
     # -- gyroscope: a bad rate is replaced by the last good one ------------------------
     g_range = coef[C_GYR_RANGE] * (1.0 - 1e-9)
     if not has_gyr:
@@ -161,9 +176,9 @@ def screen_one_k(coef, sc, step, k_ref, time_flags, g0, g1, g2, a0, a1, a2, m0, 
     elif abs(g0) >= g_range or abs(g1) >= g_range or abs(g2) >= g_range:
         f |= GYR_CLIPPED
     else:
-        sc[S_LAST_GYR], sc[S_LAST_GYR + 1], sc[S_LAST_GYR + 2] = g0, g1, g2
+        st[i_gyr], st[i_gyr + lanes], st[i_gyr + 2 * lanes] = g0, g1, g2
     if has_gyr:
-        g0, g1, g2 = sc[S_LAST_GYR], sc[S_LAST_GYR + 1], sc[S_LAST_GYR + 2]
+        g0, g1, g2 = st[i_gyr], st[i_gyr + lanes], st[i_gyr + 2 * lanes]
     # -- accelerometer: a bad sample becomes the zero sentinel --------------------------
     a_range = coef[C_ACC_RANGE] * (1.0 - 1e-9)
     acc_ok = True
@@ -188,14 +203,14 @@ def screen_one_k(coef, sc, step, k_ref, time_flags, g0, g1, g2, a0, a1, a2, m0, 
         else:
             w0, w1, w2 = g0, g1, g2
             if not has_gyr:
-                w0, w1, w2 = _acc_turn_rate(sc, acc_ok, a0, a1, a2, step)
-            if not _field_usable(coef, sc, step, w0, w1, w2, m0, m1, m2):
+                w0, w1, w2 = _acc_turn_rate(st, o, lanes, acc_ok, a0, a1, a2, step)
+            if not _field_usable(coef, st, o, lanes, step, w0, w1, w2, m0, m1, m2):
                 f |= MAG_IGNORED
                 mag_ok = False
         if mag_ok and not skip:
             # the reference is tracked for every method; the norm/dip gate applies to
             # methods without their own rejection, the absurd-norm check to all
-            far = _disturbed(coef, sc, step, k_ref, acc_ok, a0, a1, a2, m0, m1, m2)
+            far = _disturbed(coef, st, o, lanes, step, k_ref, acc_ok, a0, a1, a2, m0, m1, m2)
             if far == 2:
                 f |= MAG_IGNORED
                 mag_ok = False
@@ -207,12 +222,38 @@ def screen_one_k(coef, sc, step, k_ref, time_flags, g0, g1, g2, a0, a1, a2, m0, 
     else:
         m0 = m1 = m2 = 0.0
     if acc_ok:
-        sc[S_ACC_PREV], sc[S_ACC_PREV + 1], sc[S_ACC_PREV + 2] = a0, a1, a2
+        st[i_acc], st[i_acc + lanes], st[i_acc + 2 * lanes] = a0, a1, a2
     return f, g0, g1, g2, a0, a1, a2, m0, m1, m2
 
 
 @njit(cache=True, inline="always")
-def _field_usable(coef, sc, step, w0, w1, w2, m0, m1, m2):
+def _axis_usable(st, o, lanes, step, k, mk, wk, rate2, stuck_s, n_changed):
+    """:func:`_field_usable` for field axis k (value mk, rate wk about it): updates the
+    axis's previous value, hold time, peak and clip level; returns whether it is usable."""
+    i_prev, i_hold = o + (S_MAG_PREV + k) * lanes, o + (S_MAG_HOLD + k) * lanes
+    i_peak, i_clip = o + (S_MAG_PEAK + k) * lanes, o + (S_MAG_CLIP + k) * lanes
+    hold, peak, clip = st[i_hold], st[i_peak], st[i_clip]
+    ok = True
+    if mk == st[i_prev]:
+        # held: count only while the sensor turns about another axis
+        if rate2 - wk * wk > TURN_RAD_S * TURN_RAD_S:
+            hold += step
+    else:
+        hold = 0.0
+    level = abs(mk)
+    if hold >= stuck_s:
+        ok = False
+        # pinned at its extreme while another axis moves: a clip level
+        if n_changed > 0 and level > 0.0 and level >= peak and (clip == 0.0 or level < clip):
+            clip = level
+    elif clip > 0.0 and level >= clip * (1.0 - 1e-12):
+        ok = False
+    st[i_prev], st[i_hold], st[i_peak], st[i_clip] = mk, hold, max(peak, level), clip
+    return ok
+
+
+@njit(cache=True, inline="always")
+def _field_usable(coef, st, o, lanes, step, w0, w1, w2, m0, m1, m2):
     """Whether a finite field sample is usable: no axis stuck or at a learned clip level.
 
     An axis that holds its value while the sensor turns about another axis for
@@ -221,34 +262,12 @@ def _field_usable(coef, sc, step, w0, w1, w2, m0, m1, m2):
     """
     stuck_s = coef[C_MAG_STUCK]
     rate2 = w0 * w0 + w1 * w1 + w2 * w2
-    n_changed = 0
-    if m0 != sc[S_MAG_PREV]:
-        n_changed += 1
-    if m1 != sc[S_MAG_PREV + 1]:
-        n_changed += 1
-    if m2 != sc[S_MAG_PREV + 2]:
-        n_changed += 1
+    i_prev = o + S_MAG_PREV * lanes
+    n_changed = (m0 != st[i_prev]) + (m1 != st[i_prev + lanes]) + (m2 != st[i_prev + 2 * lanes])
     ok = not (m0 == 0.0 and m1 == 0.0 and m2 == 0.0)
-    for k in range(3):
-        mk = m0 if k == 0 else (m1 if k == 1 else m2)
-        wk = w0 if k == 0 else (w1 if k == 1 else w2)
-        if mk == sc[S_MAG_PREV + k]:
-            # held: count only while the sensor turns about another axis
-            if rate2 - wk * wk > TURN_RAD_S * TURN_RAD_S:
-                sc[S_MAG_HOLD + k] += step
-        else:
-            sc[S_MAG_HOLD + k] = 0.0
-        sc[S_MAG_PREV + k] = mk
-        level = abs(mk)
-        if sc[S_MAG_HOLD + k] >= stuck_s:
-            ok = False
-            # pinned at its extreme while another axis moves: a clip level
-            if n_changed > 0 and level > 0.0 and level >= sc[S_MAG_PEAK + k]:
-                if sc[S_MAG_CLIP + k] == 0.0 or level < sc[S_MAG_CLIP + k]:
-                    sc[S_MAG_CLIP + k] = level
-        elif sc[S_MAG_CLIP + k] > 0.0 and level >= sc[S_MAG_CLIP + k] * (1.0 - 1e-12):
-            ok = False
-        sc[S_MAG_PEAK + k] = max(sc[S_MAG_PEAK + k], level)
+    ok = _axis_usable(st, o, lanes, step, 0, m0, w0, rate2, stuck_s, n_changed) and ok
+    ok = _axis_usable(st, o, lanes, step, 1, m1, w1, rate2, stuck_s, n_changed) and ok
+    ok = _axis_usable(st, o, lanes, step, 2, m2, w2, rate2, stuck_s, n_changed) and ok
     return ok
 
 
@@ -276,12 +295,13 @@ def screen_samples(coef, dt, time_flags, gyr, acc, mag, has_mag, has_gyr, sc,
 
 
 @njit(cache=True, inline="always")
-def _acc_turn_rate(sc, acc_ok, a0, a1, a2, step):
+def _acc_turn_rate(st, o, lanes, acc_ok, a0, a1, a2, step):
     """Rate (rad/s, body) that turned the accelerometer's direction since the last usable one.
 
     Only the rotation about horizontal axes is seen; zero when either sample is unusable.
     """
-    p0, p1, p2 = sc[S_ACC_PREV], sc[S_ACC_PREV + 1], sc[S_ACC_PREV + 2]
+    i_acc = o + S_ACC_PREV * lanes
+    p0, p1, p2 = st[i_acc], st[i_acc + lanes], st[i_acc + 2 * lanes]
     np_ = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
     na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
     if not acc_ok or step <= 0.0 or np_ == 0.0 or na == 0.0:
@@ -295,7 +315,7 @@ def _acc_turn_rate(sc, acc_ok, a0, a1, a2, step):
 
 
 @njit(cache=True, inline="always")
-def _disturbed(coef, sc, step, k, acc_ok, a0, a1, a2, m0, m1, m2):
+def _disturbed(coef, st, o, lanes, step, k, acc_ok, a0, a1, a2, m0, m1, m2):
     """How far the field is from the tracked reference: 0 close, 1 disturbed, 2 absurd.
 
     Disturbed: norm or dip beyond ``mag_norm_tol`` / ``mag_dip_tol_deg``; absurd: a norm
@@ -305,50 +325,51 @@ def _disturbed(coef, sc, step, k, acc_ok, a0, a1, a2, m0, m1, m2):
     stays steady for NEW_REF_S (a new environment). ``k``: ``ref_gain(step)``.
     """
     norm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
-    ref_norm = sc[S_REF + R_NORM]
-    if ref_norm > 0.0 and (norm > ABSURD * ref_norm or norm * ABSURD < ref_norm):
+    j = o + S_REF * lanes  # the reference's slot r is st[j + r * lanes]
+    ref_n, ref_d = st[j + R_NORM * lanes], st[j + R_DIP * lanes]
+    cand_n, cand_d = st[j + R_CAND_NORM * lanes], st[j + R_CAND_DIP * lanes]
+    cand_s = st[j + R_CAND_S * lanes]
+    if ref_n > 0.0 and (norm > ABSURD * ref_n or norm * ABSURD < ref_n):
         return 2
-    dip = math.nan
+    # the dip, computed whatever the acceleration (then kept or not): a call taken on
+    # every path lets the compiler vectorise this across sensors
     a_norm = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-    if acc_ok and abs(a_norm - GRAVITY) < DIP_ACC_TOL_M_S2:
-        sine = -(a0 * m0 + a1 * m1 + a2 * m2) / (a_norm * norm)
-        dip = math.asin(min(1.0, max(-1.0, sine)))
-    if sc[S_REF + R_NORM] <= 0.0:
-        sc[S_REF + R_NORM] = coef[C_REF_NORM] if coef[C_REF_NORM] > 0.0 else norm
-        sc[S_REF + R_DIP] = coef[C_REF_DIP]
-        sc[S_REF + R_CAND_NORM] = norm
-        sc[S_REF + R_CAND_DIP] = dip
-        sc[S_REF + R_CAND_S] = 0.0
-    if math.isnan(sc[S_REF + R_DIP]) and not math.isnan(dip):
-        sc[S_REF + R_DIP] = dip
+    den = a_norm * norm
+    sine = -(a0 * m0 + a1 * m1 + a2 * m2) / (den if den > 0.0 else 1.0)
+    dip = math.asin(min(1.0, max(-1.0, sine)))
+    if not (acc_ok and abs(a_norm - GRAVITY) < DIP_ACC_TOL_M_S2):
+        dip = math.nan
+    if ref_n <= 0.0:
+        ref_n = coef[C_REF_NORM] if coef[C_REF_NORM] > 0.0 else norm
+        ref_d = coef[C_REF_DIP]
+        cand_n, cand_d, cand_s = norm, dip, 0.0
+    if math.isnan(ref_d) and not math.isnan(dip):
+        ref_d = dip
     tol_n, tol_d = coef[C_NORM_TOL], coef[C_DIP_TOL]
-    known = not math.isnan(dip) and not math.isnan(sc[S_REF + R_DIP])
-    off_dip = known and abs(dip - sc[S_REF + R_DIP]) > tol_d
-    disturbed = abs(norm - sc[S_REF + R_NORM]) > tol_n * sc[S_REF + R_NORM] or off_dip
-    if not disturbed:
-        sc[S_REF + R_NORM] += k * (norm - sc[S_REF + R_NORM])
+    known = not math.isnan(dip) and not math.isnan(ref_d)
+    off_dip = known and abs(dip - ref_d) > tol_d
+    far = 1
+    if not (abs(norm - ref_n) > tol_n * ref_n or off_dip):
+        far = 0
+        ref_n += k * (norm - ref_n)
         if not math.isnan(dip):
-            sc[S_REF + R_DIP] += k * (dip - sc[S_REF + R_DIP])
-        sc[S_REF + R_CAND_NORM] = norm
-        sc[S_REF + R_CAND_DIP] = dip
-        sc[S_REF + R_CAND_S] = 0.0
-        return 0
-    cand_n = sc[S_REF + R_CAND_NORM]
-    cand_known = not math.isnan(dip) and not math.isnan(sc[S_REF + R_CAND_DIP])
-    cand_off_dip = cand_known and abs(dip - sc[S_REF + R_CAND_DIP]) > tol_d
-    if abs(norm - cand_n) < tol_n * cand_n and not cand_off_dip:
-        sc[S_REF + R_CAND_S] += step
-        sc[S_REF + R_CAND_NORM] += k * (norm - cand_n)
-        if not math.isnan(dip):
-            if math.isnan(sc[S_REF + R_CAND_DIP]):
-                sc[S_REF + R_CAND_DIP] = dip
-            sc[S_REF + R_CAND_DIP] += k * (dip - sc[S_REF + R_CAND_DIP])
+            ref_d += k * (dip - ref_d)
+        cand_n, cand_d, cand_s = norm, dip, 0.0
     else:
-        sc[S_REF + R_CAND_S] = 0.0
-        sc[S_REF + R_CAND_NORM] = norm
-        sc[S_REF + R_CAND_DIP] = dip
-    if sc[S_REF + R_CAND_S] > NEW_REF_S:
-        sc[S_REF + R_NORM] = sc[S_REF + R_CAND_NORM]
-        sc[S_REF + R_DIP] = sc[S_REF + R_CAND_DIP]
-        sc[S_REF + R_CAND_S] = 0.0
-    return 1
+        cand_known = not math.isnan(dip) and not math.isnan(cand_d)
+        cand_off_dip = cand_known and abs(dip - cand_d) > tol_d
+        if abs(norm - cand_n) < tol_n * cand_n and not cand_off_dip:
+            cand_s += step
+            cand_n += k * (norm - cand_n)
+            if not math.isnan(dip):
+                if math.isnan(cand_d):
+                    cand_d = dip
+                cand_d += k * (dip - cand_d)
+        else:
+            cand_n, cand_d, cand_s = norm, dip, 0.0
+        if cand_s > NEW_REF_S:
+            ref_n, ref_d, cand_s = cand_n, cand_d, 0.0
+    st[j + R_NORM * lanes], st[j + R_DIP * lanes] = ref_n, ref_d
+    st[j + R_CAND_NORM * lanes], st[j + R_CAND_DIP * lanes] = cand_n, cand_d
+    st[j + R_CAND_S * lanes] = cand_s
+    return far

@@ -1,0 +1,187 @@
+"""Sensors run in lockstep blocks (``kernels/contract_lanes.py``) equal each sensor run alone.
+
+Bit for bit: the lockstep path gives each sensor the same arithmetic in the same order,
+whatever the faults, (re)starts and clock events of its data, and whichever lane and block
+it lands in.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numba
+import numpy as np
+import pytest
+
+from margtrack import io, methods, sim
+from margtrack.estimator import compiled
+from margtrack.kernels import contract_lanes, jit
+
+LOCKSTEP = ["gradient", "bachmann"]
+#: one full block and a partial one, so lanes at both ends of a block are checked
+N_SENSORS = contract_lanes.LANES + 5
+BROAD = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "broad"
+
+
+def _faulty_sensors(n_sensors: int = N_SENSORS, duration_s: float = 12.0):
+    """Simulated sensors with one kind of fault each, and a clock with a gap, a repeated
+    timestamp and a reset back."""
+    recs = [sim.simulate_motion("random", duration_s=duration_s, rate_hz=100.0, seed=s)
+            for s in range(n_sensors)]
+    gyr = np.stack([r.gyr for r in recs])
+    acc = np.stack([r.acc for r in recs])
+    mag = np.stack([r.mag for r in recs])
+    t = recs[0].t.copy()
+    gyr[1, 40:45] = np.nan  # invalid rate: the last good one is held
+    acc[2, 80:90] = 0.0  # no acceleration
+    gyr[3, 120] = 1e9  # clipped rate
+    mag[4, 150:] = 0.0  # the field dies
+    mag[5, 200:900, 1] = mag[5, 200, 1]  # one field axis stuck while turning
+    mag[6, 300:700] *= 3.0  # a disturbed field, then a new steady one
+    mag[7, 400:420] *= 100.0  # absurd field samples
+    acc[8, 500:520] = 1e6  # acceleration beyond any range
+    mag[9, :60] = np.nan  # no field at the start: the start waits for one
+    acc[10, :30] = np.nan  # no acceleration at the start either
+    if n_sensors > contract_lanes.LANES:
+        mag[contract_lanes.LANES, 100:200] = np.inf  # the first lane of the second block
+    t[600:] += 2.0  # a gap: every sensor restarts
+    t[800] = t[799]  # a repeated timestamp: skipped
+    t[1000:] -= 5.0  # the clock jumps back: a reset
+    return t, gyr, acc, mag
+
+
+def _assert_each_alone(name, t, gyr, acc, mag, together, **params):
+    for s in range(acc.shape[0]):
+        alone = methods.create(name, params).run(
+            gyr=gyr[s], acc=acc[s], mag=None if mag is None else mag[s], t=t, check_units=False
+        )
+        np.testing.assert_array_equal(together.quat[s], alone.quat, err_msg=f"sensor {s}")
+        np.testing.assert_array_equal(together.flags[s], alone.flags, err_msg=f"sensor {s}")
+        for key, value in alone.outputs.items():
+            np.testing.assert_array_equal(together.outputs[key][s], value, err_msg=key)
+
+
+@pytest.mark.kernel
+@pytest.mark.parametrize("name", LOCKSTEP)
+def test_lockstep_is_the_path_for_many_sensors(name):
+    est = methods.create(name)
+    kernel = methods.get(name).kernel
+    assert est._series_kernel(compiled.LANES_MIN_SENSORS, False) is kernel.run_lanes
+    assert est._series_kernel(compiled.LANES_MIN_SENSORS, True) is kernel.run_lanes_many
+    assert est._series_kernel(compiled.LANES_MIN_SENSORS - 1, False) is kernel.run
+
+
+def _assert_same_run(a, b):
+    np.testing.assert_array_equal(a.quat, b.quat)
+    np.testing.assert_array_equal(a.flags, b.flags)
+    for key, value in a.outputs.items():
+        np.testing.assert_array_equal(b.outputs[key], value, err_msg=key)
+
+
+@pytest.mark.kernel
+@pytest.mark.parametrize(
+    ("name", "params"),
+    [("gradient", {}), ("gradient", {"mag_objective": "fixed", "frame": "NED"}),
+     ("gradient", {"mag_objective": "madgwick", "integration": "euler"}),
+     ("gradient", {"mag_objective": "forward_measured"}),
+     ("bachmann", {}), ("bachmann", {"correction_interval": 3, "round_robin": True}),
+     ("bachmann", {"mag_reference": (0.0, 0.5, -0.8), "gravity_reference": (0.0, 0.1, 1.0),
+                   "gyr_null_rest_s": 0.0, "frame": "NED"}),
+     ("bachmann-accmag", {})],
+)
+def test_lockstep_equals_sensor_by_sensor_under_faults(name, params, monkeypatch):
+    t, gyr, acc, mag = _faulty_sensors()
+    together = methods.create(name, params).run(gyr=gyr, acc=acc, mag=mag, t=t,
+                                                check_units=False)
+    # the faults were seen (else the comparison proves little)
+    flags = together.flags
+    assert np.any(flags[1] != 0) and np.any(flags[5] != 0) and np.any(flags[6] != 0)
+    assert np.any(flags[contract_lanes.LANES] != 0) and not np.any(flags[0, :590] != 0)
+    # the same sensors through contract.run_series, one after the other
+    monkeypatch.setattr(compiled, "LANES_MIN_SENSORS", 10**9)
+    one_by_one = methods.create(name, params).run(gyr=gyr, acc=acc, mag=mag, t=t,
+                                                  check_units=False)
+    _assert_same_run(one_by_one, together)
+    if not params.get("round_robin"):  # (round robin: a sensor's turn is its index)
+        _assert_each_alone(name, t, gyr, acc, mag, together, **params)
+
+
+@pytest.mark.kernel
+@pytest.mark.parametrize("name", LOCKSTEP)
+def test_lockstep_threads_and_halves_equal_one_run(name, monkeypatch):
+    t, gyr, acc, mag = _faulty_sensors()
+    alone = methods.create(name).run(gyr=gyr, acc=acc, mag=mag, t=t, check_units=False)
+    monkeypatch.setattr(compiled, "PARALLEL_MIN_SAMPLES", 0)  # blocks shared among threads
+    threaded = methods.create(name).run(gyr=gyr, acc=acc, mag=mag, t=t, check_units=False)
+    np.testing.assert_array_equal(threaded.quat, alone.quat)
+    np.testing.assert_array_equal(threaded.flags, alone.flags)
+    # the state goes back to the rows: a run continued in a second call is the same run
+    est = methods.create(name)
+    half = 350
+    first = est.run(gyr=gyr[:, :half], acc=acc[:, :half], mag=mag[:, :half], t=t[:half],
+                    check_units=False)
+    second = est.run(gyr=gyr[:, half:], acc=acc[:, half:], mag=mag[:, half:], t=t[half:],
+                     check_units=False)
+    np.testing.assert_array_equal(np.concatenate([first.quat, second.quat], axis=1), alone.quat)
+
+
+@pytest.mark.kernel
+@pytest.mark.parametrize("name", LOCKSTEP)
+def test_lockstep_without_magnetometer_equals_each_sensor_alone(name):
+    t, gyr, acc, _ = _faulty_sensors(n_sensors=compiled.LANES_MIN_SENSORS + 1)
+    together = methods.create(name).run(gyr=gyr, acc=acc, t=t, check_units=False)
+    _assert_each_alone(name, t, gyr, acc, None, together)
+
+
+@pytest.mark.kernel
+@pytest.mark.skipif(not (BROAD.is_dir() and any(BROAD.glob("*.hdf5"))),
+                    reason="BROAD trials not in ../shared/data/broad")
+@pytest.mark.parametrize("name", LOCKSTEP)
+def test_lockstep_equals_each_sensor_alone_on_broad(name):
+    trials = io.broad_trials(BROAD)
+    rng = np.random.default_rng(3)
+    n, windows = 1500, []
+    for k in range(N_SENSORS):
+        rec = io.read_broad(trials[k % len(trials)].path)
+        i = int(rng.integers(0, rec.t.size - n))
+        windows.append((rec.gyr[i:i + n], rec.acc[i:i + n], rec.mag[i:i + n]))
+    gyr, acc, mag = (np.stack([w[c] for w in windows]) for c in range(3))
+    t = np.arange(n) / 285.714
+    together = methods.create(name).run(gyr=gyr, acc=acc, mag=mag, t=t)
+    _assert_each_alone(name, t, gyr, acc, mag, together)
+
+
+@pytest.mark.kernel
+@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"),
+                    reason="numba's JIT is off: nothing is compiled, so nothing vectorised")
+@pytest.mark.parametrize("name", LOCKSTEP)
+def test_lockstep_block_is_vectorised(name):
+    """The loop over lanes compiles to 8-wide vector arithmetic (``jit``'s vector_width),
+    and gives the block's results (compiled afresh here: numba's cache keeps no IR)."""
+    kernel = methods.get(name).kernel
+    lazy = jit.LazyKernel(kernel.lanes_block.py_func,
+                          {k: v for k, v in _options(kernel.lanes_block).items() if k != "cache"})
+    block = jit._dispatcher(numba, lazy)
+    t, gyr, acc, mag = _faulty_sensors(n_sensors=compiled.LANES_MIN_SENSORS)
+    est = methods.create(name)
+    rows, coefs = est._new_rows(gyr.shape[0]).rows, est._coefs
+    dts, ks, tflags = np.full(t.size, 0.01), np.full(t.size, 1e-4), np.zeros(t.size, np.int64)
+    n_x = kernel.LANES_WIDTH - kernel.N_ROW - contract_lanes.N_B
+    outs = [(np.empty((gyr.shape[0], t.size, 4)), np.empty((gyr.shape[0], t.size, n_x)),
+             np.empty((gyr.shape[0], t.size), np.uint16)) for _ in range(2)]
+    st = np.empty(kernel.LANES_WIDTH * contract_lanes.LANES)
+    for f, (q, x, flags) in zip((block, kernel.lanes_block), outs, strict=True):
+        f(st, rows.copy(), 0, coefs, dts, ks, tflags, gyr, acc, mag, 3, q, x, flags)
+    np.testing.assert_array_equal(outs[0][0], outs[1][0])
+    llvm_ir = block.inspect_llvm(block.signatures[0])
+    assert llvm_ir.count("fmul <8 x double>") > 50
+    assert llvm_ir.count("@llvm.sqrt.v8f64") > 5
+
+
+def _options(kernel):
+    """The ``njit`` options a kernel was declared with (a dispatcher or a lazy kernel)."""
+    for lazy in jit.kernels():
+        if kernel is lazy or kernel is lazy.dispatcher:
+            return lazy.options
+    raise LookupError(kernel)
