@@ -56,6 +56,12 @@ import math
 
 from margtrack.kernels import contract, contract_lanes, rest_null
 from margtrack.kernels._quat import cross, mul
+from margtrack.kernels.complementary_geometry import (
+    cofactors,
+    rotate,
+    set_heading,
+    unit_or_previous,
+)
 from margtrack.kernels.contract import N_SCOEF
 from margtrack.kernels.jit import njit, to_fixed_tuple
 from margtrack.kernels.screen import ACC_IGNORED, MAG_IGNORED
@@ -66,9 +72,6 @@ ZERO_ACC = 1  # no correction at this sample: the accelerometer reads zero
 ZERO_MAG = 2  # gravity-only correction at this sample: the magnetometer reads zero
 NO_FIELD_REFERENCE = 3  # gravity-only correction: the sensor's field reference is not known yet
 
-#: the heading is set from a field sample only when the field seen in the earth frame is
-#: at least this far from vertical (sine of 5 deg: MIN_REFERENCE_ANGLE_DEG of the filter)
-HEADING_MIN_SINE = 0.08715574274765817
 #: a measured dip is limited to ±(90 - 5) deg (MIN_REFERENCE_ANGLE_DEG of the filter), rad
 DIP_LIMIT_RAD = math.radians(85.0)
 
@@ -114,84 +117,6 @@ X_NEW = 4
 X_CODE = 5
 X_NULL = 6  # 3, with a gyroscope only
 N_X = X_NULL + 3
-
-
-@njit(cache=True, inline="always")
-def _rotate(w, x, y, z, vx, vy, vz):
-    """q ⊗ (0, v) ⊗ q* for unit q: ``v + 2 w (u × v) + 2 u × (u × v)``, u = (x, y, z)."""
-    tx, ty, tz = cross(x, y, z, vx, vy, vz)
-    tx, ty, tz = 2.0 * tx, 2.0 * ty, 2.0 * tz
-    cx, cy, cz = cross(x, y, z, tx, ty, tz)
-    return vx + w * tx + cx, vy + w * ty + cy, vz + w * tz + cz
-
-
-@njit(cache=True, inline="always")
-def _unit_or_previous(w, x, y, z, pw, px, py, pz):
-    """q / |q| (eq. 27's normalisation), safe for any finite or non-finite q.
-
-    When ``|q|²`` overflows the components are first divided by the largest one; when q
-    is zero or not finite the previous unit quaternion p is returned (the step is not
-    representable: the sample is not integrated).
-    """
-    n2 = w * w + x * x + y * y + z * z
-    if n2 > 0.0 and n2 < math.inf:
-        scale = 1.0 / math.sqrt(n2)
-        return w * scale, x * scale, y * scale, z * scale
-    big = max(max(abs(w), abs(x)), max(abs(y), abs(z)))
-    if big > 0.0 and big < math.inf:
-        w, x, y, z = w / big, x / big, y / big, z / big
-        scale = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)  # >= 1/2: no overflow
-        return w * scale, x * scale, y * scale, z * scale
-    return pw, px, py, pz
-
-
-@njit(cache=True)
-def _set_heading(qw, qx, qy, qz, bx, by, bz, mx, my, mz, nx, ny, nz):
-    """q̂ turned about the unit gravity reference m so that the field b (body) seen in the
-    earth frame has the horizontal direction of the reference n; returns (q, still
-    awaiting): unchanged and True when b is zero or seen within 5 deg of vertical."""
-    nb = math.sqrt(bx * bx + by * by + bz * bz)
-    if not nb > 0.0:
-        return qw, qx, qy, qz, True
-    ex, ey, ez = _rotate(qw, qx, qy, qz, bx / nb, by / nb, bz / nb)
-    d = ex * mx + ey * my + ez * mz
-    ex, ey, ez = ex - d * mx, ey - d * my, ez - d * mz  # horizontal part of R b
-    d = nx * mx + ny * my + nz * mz
-    hx, hy, hz = nx - d * mx, ny - d * my, nz - d * mz  # horizontal part of n
-    if ex * ex + ey * ey + ez * ez < HEADING_MIN_SINE * HEADING_MIN_SINE:
-        return qw, qx, qy, qz, True
-    cx, cy, cz = cross(ex, ey, ez, hx, hy, hz)
-    angle = math.atan2(cx * mx + cy * my + cz * mz, ex * hx + ey * hy + ez * hz)
-    c, s = math.cos(0.5 * angle), math.sin(0.5 * angle)
-    qw, qx, qy, qz = mul(c, s * mx, s * my, s * mz, qw, qx, qy, qz)  # earth-frame turn
-    return qw, qx, qy, qz, False
-
-
-
-
-@njit(cache=True)
-def cofactors(mx, my, mz, nx, ny, nz):
-    """``M0 = 2 I - m mᵀ - n nᵀ`` by cofactors: (usable, c00, c01, c02, c11, c12, c22,
-    1 / (2 det M0)); not usable (and the scale 1/2) when n is NaN or det <= 1e-12 (a
-    reference along gravity: gravity-only steps)."""
-    a00 = 2.0 - mx * mx - nx * nx
-    a01 = -mx * my - nx * ny
-    a02 = -mx * mz - nx * nz
-    a11 = 2.0 - my * my - ny * ny
-    a12 = -my * mz - ny * nz
-    a22 = 2.0 - mz * mz - nz * nz
-    c00 = a11 * a22 - a12 * a12
-    c01 = a02 * a12 - a01 * a22
-    c02 = a01 * a12 - a02 * a11
-    c11 = a00 * a22 - a02 * a02
-    c12 = a01 * a02 - a00 * a12
-    c22 = a00 * a11 - a01 * a01
-    det = a00 * c00 + a01 * c01 + a02 * c02  # 2 sin² γ
-    usable = not (math.isnan(nx) or math.isnan(ny) or math.isnan(nz))
-    if not det > 1e-12:
-        usable = False
-        det = 1.0
-    return usable, c00, c01, c02, c11, c12, c22, 0.5 / det
 
 
 @njit(cache=True, inline="always")
@@ -318,7 +243,7 @@ def _step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag
     nz = coef[C_REF + 2] if fixed else st[i_ref + 2 * lanes]
     flag = OK
     if not steady and st[o + B_AWAIT * lanes] != 0.0 and has_mag and has_ref:
-        qw, qx, qy, qz, awaiting = _set_heading(
+        qw, qx, qy, qz, awaiting = set_heading(
             qw, qx, qy, qz, m0, m1, m2, mx, my, mz, nx, ny, nz
         )
         st[o + B_AWAIT * lanes] = 1.0 if awaiting else 0.0
@@ -328,7 +253,7 @@ def _step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag
         # steps 1-6 of 000's Fig. 5, in the earth frame (module docstring)
         na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
         if na > 0.0:
-            hx, hy, hz = _rotate(qw, qx, qy, qz, a0 / na, a1 / na, a2 / na)
+            hx, hy, hz = rotate(qw, qx, qy, qz, a0 / na, a1 / na, a2 / na)
             ex, ey, ez = hx - mx, hy - my, hz - mz  # R (h - ĥ) (eq. 15)
             phi = ex * ex + ey * ey + ez * ez  # eq. 19, gravity part
             rx, ry, rz = cross(hx, hy, hz, mx, my, mz)  # R (h × ĥ)
@@ -346,7 +271,7 @@ def _step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag
                     c12 = coef[C_MINV + 4] if fixed else st[i_minv + 4 * lanes]
                     c22 = coef[C_MINV + 5] if fixed else st[i_minv + 5 * lanes]
                     half_det_inv = coef[C_MINV + 6] if fixed else st[i_minv + 6 * lanes]
-                    bx, by, bz = _rotate(qw, qx, qy, qz, m0 / nb, m1 / nb, m2 / nb)
+                    bx, by, bz = rotate(qw, qx, qy, qz, m0 / nb, m1 / nb, m2 / nb)
                     ex, ey, ez = bx - nx, by - ny, bz - nz  # R (b - b̂) (eq. 16)
                     phi += rho * rho * (ex * ex + ey * ey + ez * ez)
                     cx, cy, cz = cross(bx, by, bz, nx, ny, nz)  # R (b × b̂)
@@ -388,7 +313,7 @@ def _step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag
         dz += 0.5 * gz
     # q̂ + Δt (q̇ + q̇_ε), normalised (eq. 27); dt = 0 leaves q̂ exactly as it is
     if dt != 0.0:
-        qw, qx, qy, qz = _unit_or_previous(
+        qw, qx, qy, qz = unit_or_previous(
             qw + dt * dw, qx + dt * dx, qy + dt * dy, qz + dt * dz, qw, qx, qy, qz
         )
     st[i_q], st[i_q + lanes], st[i_q + 2 * lanes], st[i_q + 3 * lanes] = qw, qx, qy, qz
