@@ -56,16 +56,11 @@ import math
 
 from margtrack.kernels import contract, contract_lanes, rest_null
 from margtrack.kernels._quat import cross, mul
-from margtrack.kernels.complementary_geometry import (
-    cofactors,
-    rotate,
-    set_heading,
-    unit_or_previous,
-)
+from margtrack.kernels.complementary_geometry import cofactors, set_heading, unit_or_previous
 from margtrack.kernels.contract import N_SCOEF
 from margtrack.kernels.jit import njit, to_fixed_tuple
 from margtrack.kernels.screen import ACC_IGNORED, MAG_IGNORED
-from margtrack.kernels.triad import PARALLEL_SINE
+from margtrack.kernels.triad import PARALLEL_SINE, rotate
 
 OK = 0
 ZERO_ACC = 1  # no correction at this sample: the accelerometer reads zero

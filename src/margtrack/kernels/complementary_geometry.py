@@ -1,5 +1,6 @@
-"""Earth-frame geometry of Bachmann's filter (000, Appendix A): rotating a vector, the
-normalisation of eq. 27, the heading set from the field, and the cofactors of M0.
+"""Earth-frame geometry of Bachmann's filter (000, Appendix A): the normalisation of
+eq. 27, the heading set from the field, and the cofactors of M0 (vectors are rotated by
+``triad.rotate``).
 
 Quaternions are body to earth ``[w, x, y, z]``; vectors are 3 floats. Used by
 :mod:`margtrack.kernels.complementary` (its module docstring has the derivation).
@@ -11,19 +12,11 @@ import math
 
 from margtrack.kernels._quat import cross, mul
 from margtrack.kernels.jit import njit
+from margtrack.kernels.triad import rotate
 
 #: the heading is set from a field sample only when the field seen in the earth frame is
 #: at least this far from vertical (sine of 5 deg: MIN_REFERENCE_ANGLE_DEG of the filter)
 HEADING_MIN_SINE = 0.08715574274765817
-
-
-@njit(cache=True, inline="always")
-def rotate(w, x, y, z, vx, vy, vz):
-    """q ⊗ (0, v) ⊗ q* for unit q: ``v + 2 w (u × v) + 2 u × (u × v)``, u = (x, y, z)."""
-    tx, ty, tz = cross(x, y, z, vx, vy, vz)
-    tx, ty, tz = 2.0 * tx, 2.0 * ty, 2.0 * tz
-    cx, cy, cz = cross(x, y, z, tx, ty, tz)
-    return vx + w * tx + cx, vy + w * ty + cy, vz + w * tz + cz
 
 
 @njit(cache=True, inline="always")

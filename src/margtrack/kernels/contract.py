@@ -82,9 +82,10 @@ def _sample(start, step, hold, row, coef, scoef, dt, k_ref, tflags, g0, g1, g2, 
     """One sensor, one sample: screen, (re)start when due, step or hold; returns flags.
 
     ``k_ref`` is ``screen.ref_gain(dt)``, shared by the sensors of a sample."""
-    sc = row[K_SCREEN : K_SCREEN + screen.N_SCREEN]
-    f, g0, g1, g2, a0, a1, a2, m0, m1, m2 = screen.screen_one_k(
-        scoef, sc, dt, k_ref, tflags, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, has_gyr
+    # (screen_at, not its wrapper screen_one_k: each level of inlining copies the body)
+    f, g0, g1, g2, a0, a1, a2, m0, m1, m2 = screen.screen_at(
+        scoef, row, K_SCREEN, 1, dt, k_ref, tflags, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag,
+        has_gyr,
     )
     if tflags & screen.GAP:
         row[K_READY] = 0.0

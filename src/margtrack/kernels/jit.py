@@ -17,10 +17,12 @@ The registry of kernels is process-wide by nature (numba's own dispatchers are t
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
+import tempfile
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 __all__ = [
@@ -177,13 +179,35 @@ def _force_vector_width(dispatcher: Any, width: int) -> None:
         _FORCED.append(width)
         binding.set_option("margtrack", f"-force-vector-width={width}")
         try:
-            return compile_(sig)
+            with _remarks_dropped():
+                return compile_(sig)
         finally:
             _FORCED.pop()
             restore = _FORCED[-1] if _FORCED else 0
             binding.set_option("margtrack", f"-force-vector-width={restore}")
 
     dispatcher.compile = compile_forced
+
+
+@contextlib.contextmanager
+def _remarks_dropped() -> Iterator[None]:
+    """With a forced width LLVM prints a remark on stderr for every loop it could not
+    vectorise (the kernel's copy loops, say): noise to a user. stderr (the file descriptor,
+    where LLVM writes) goes to a file meanwhile; what is not such a remark is written back."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as caught:
+        os.dup2(caught.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            caught.seek(0)
+            kept = [line for line in caught.read().decode(errors="replace").splitlines(True)
+                    if not line.startswith("remark: ")]
+            if kept:
+                sys.stderr.write("".join(kept))
 
 
 def numba_loaded() -> bool:
@@ -224,11 +248,14 @@ def resolve_all() -> None:
         # numba, also when another thread calls a kernel meanwhile
         from numba.np.unsafe.ndarray import to_fixed_tuple as real_to_fixed_tuple
 
-        _rebind(real, {
+        placeholders = {
             _PrangePlaceholder: numba.prange,
             _LiterallyPlaceholder: numba.literally,
             _ToFixedTuplePlaceholder: real_to_fixed_tuple,
-        })
+        }
+        if numba.config.DISABLE_JIT:  # the kernels run as Python: numba's intrinsic cannot
+            del placeholders[_ToFixedTuplePlaceholder]
+        _rebind(real, placeholders)
         for kernel in _KERNELS:
             kernel.dispatcher = real[id(kernel)]
         _NUMBA = numba
