@@ -4,9 +4,9 @@ For each method (Bachmann's filter ``bachmann``, 000 Appendix A, and the default
 ``robust``), in one run on this machine:
 
 1. filter rates on one batch as the engine runs it, S = 100000 sensors x 4 frames: the
-   kernel's multi-sensor entry alone (the one ``run_into`` takes: ``kernel.run_lanes_many``,
-   sensors in lockstep blocks over threads, for a method that has it, else
-   ``kernel.run_many``, threads over sensors) on
+   kernel's multi-sensor entry alone (the one ``run_into`` takes: ``kernel.run_lanes``,
+   sensors in lockstep blocks, for a method that has it, else ``kernel.run``, over threads
+   with the sensors shared among them, ``estimator/sensor_threads.py``) on
    prepared arrays, the engine's hot path (``CompiledEstimator.run_into``: reused buffers,
    the state in place) and the public ``run`` (validation, input and state copies, new
    outputs); whether the kernel call runs on both cores (the CPU time of the threads other
@@ -298,8 +298,13 @@ def profile_split(profiler: cProfile.Profile, frames: int) -> str:
         return sum(v[2] if own else v[3] for (f, _, n), v in entries.items()
                    if f.endswith(path) and n == name)
 
-    kernel = sum(v[2] for (f, _, n), v in entries.items()
-                 if "/kernels/" in f and n in ("run", "run_many", "run_lanes", "run_lanes_many"))
+    # the kernel called by run_into itself, or over threads (run_threaded, its wall time
+    # in this thread: the calling thread's part and the wait for the others)
+    kernel = sum(t for (f, _, n), v in entries.items()
+                 if "/kernels/" in f and n in ("run", "run_lanes")
+                 for (cf, _, cn), (_, _, t, _) in v[4].items()
+                 if not (cf.endswith("sensor_threads.py") and cn == "part"))
+    kernel += total("estimator/sensor_threads.py", "run_threaded")
     run = (total("estimator/compiled.py", "run_into") + total("estimator/compiled.py",
                                                              "_run_arrays")
            or total("estimator/contract.py", "run"))

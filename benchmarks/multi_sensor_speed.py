@@ -13,7 +13,7 @@ Measured in one run, wall clock (``time.perf_counter``), best of ``--repeats`` a
 warm-up call that compiles the kernels:
 
 - margtrack ``create(method).run(gyr=, acc=, mag=, t=)`` on the (S, N, 3) arrays: one call,
-  the sensors shared among the machine's threads (``numba.prange``);
+  the sensors shared among the machine's threads (``estimator/sensor_threads.py``);
 - vqf ``VQF(Ts).updateBatch(gyr, acc, mag)`` (C++), a Python loop over the same sensors,
   a fresh filter per sensor; the same for the stream.
 

@@ -9,12 +9,11 @@ compile the same kernels at the same time. :func:`precompile` compiles them once
 each method in one process of a pool, the methods shared among the processes.
 
 A method is compiled by using it the way programs do, on a simulated recording: ``run``
-on one sensor and on several (the threaded kernel; for a method with lockstep kernels,
-``kernels/contract_lanes.py``, on enough sensors for those too, serial and threaded),
-and ``update`` sample by sample on one
-sensor (past the unit check, so the one-sample kernel too) and on several. Kernels called
-with other argument types (float32 arrays straight into a kernel, say) still compile on
-first use.
+on one sensor (and, for a method with lockstep kernels, ``kernels/contract_lanes.py``, on
+enough sensors for those), and ``update`` sample by sample on one sensor (past the unit
+check, so the one-sample kernel too) and on several. Several sensors over threads take
+the same kernels (``estimator/sensor_threads.py``). Kernels called with other argument
+types (float32 arrays straight into a kernel, say) still compile on first use.
 """
 
 from __future__ import annotations
@@ -29,10 +28,8 @@ import numpy as np
 
 __all__ = ["precompile"]
 
-#: samples of the simulated recording; the several-sensor run is long enough to take the
-#: threaded kernel (``estimator.compiled.PARALLEL_MIN_SAMPLES``)
+#: samples of the simulated recording
 _SAMPLES = 400
-_SENSORS = 2
 
 
 def precompile(
@@ -127,20 +124,17 @@ def _compile_method(name: str) -> float:
 def _use_method(name: str) -> float:
     """:func:`_compile_method`'s work: the calls that compile the method's kernels."""
     from margtrack import methods
-    from margtrack.estimator.compiled import LANES_MIN_SENSORS, PARALLEL_MIN_SAMPLES
+    from margtrack.estimator.compiled import LANES_MIN_SENSORS
     from margtrack.sim import simulate_motion
 
     start = time.perf_counter()
     rec = simulate_motion("random", duration_s=_SAMPLES / 100.0, rate_hz=100.0, seed=1)
     gyr, acc, mag = rec.gyr[:_SAMPLES], rec.acc[:_SAMPLES], rec.mag[:_SAMPLES]
     methods.create(name).run(gyr=gyr, acc=acc, mag=mag, rate_hz=100.0)
-    reps = -(-PARALLEL_MIN_SAMPLES // (_SENSORS * _SAMPLES))  # enough for the threaded kernel
-    many = [np.tile(x, (_SENSORS, reps, 1)) for x in (gyr, acc, mag)]
-    methods.create(name).run(gyr=many[0], acc=many[1], mag=many[2], rate_hz=100.0)
     if hasattr(getattr(methods.get(name), "kernel", None), "run_lanes"):
-        for n_reps in (1, -(-PARALLEL_MIN_SAMPLES // (LANES_MIN_SENSORS * _SAMPLES))):
-            lanes = [np.tile(x, (LANES_MIN_SENSORS, n_reps, 1)) for x in (gyr, acc, mag)]
-            methods.create(name).run(gyr=lanes[0], acc=lanes[1], mag=lanes[2], rate_hz=100.0)
+        lanes = [np.tile(x, (LANES_MIN_SENSORS, 1, 1)) for x in (gyr, acc, mag)]
+        methods.create(name).run(gyr=lanes[0], acc=lanes[1], mag=lanes[2], rate_hz=100.0)
+    many = [np.stack([x, x]) for x in (gyr, acc, mag)]
     if not getattr(methods.get(name), "offline", False):
         one = methods.create(name, rate_hz=100.0)
         for i in range(_SAMPLES):

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from margtrack import io, methods, sim
-from margtrack.estimator import compiled
+from margtrack.estimator import compiled, sensor_threads
 from margtrack.kernels import contract_lanes, jit
 
 LOCKSTEP = ["gradient", "bachmann"]
@@ -68,7 +68,10 @@ def test_lockstep_is_the_path_for_many_sensors(name):
     est = methods.create(name)
     kernel = methods.get(name).kernel
     assert est._series_kernel(compiled.LANES_MIN_SENSORS, False) is kernel.run_lanes
-    assert est._series_kernel(compiled.LANES_MIN_SENSORS, True) is kernel.run_lanes_many
+    threaded = est._series_kernel(compiled.LANES_MIN_SENSORS, True)
+    assert threaded.func is sensor_threads.run_threaded
+    assert threaded.args == (jit.dispatcher(kernel.run_lanes),)
+    assert threaded.keywords == {"align": contract_lanes.LANES}  # whole blocks per thread
     assert est._series_kernel(compiled.LANES_MIN_SENSORS - 1, False) is kernel.run
 
 
@@ -108,11 +111,12 @@ def test_lockstep_equals_sensor_by_sensor_under_faults(name, params, monkeypatch
 
 
 @pytest.mark.kernel
-@pytest.mark.parametrize("name", ["gradient"])  # one template for both (compiling is slow)
+@pytest.mark.parametrize("name", LOCKSTEP)
 def test_lockstep_threads_and_halves_equal_one_run(name, monkeypatch):
     t, gyr, acc, mag = _faulty_sensors()
     alone = methods.create(name).run(gyr=gyr, acc=acc, mag=mag, t=t, check_units=False)
     monkeypatch.setattr(compiled, "PARALLEL_MIN_SAMPLES", 0)  # blocks shared among threads
+    monkeypatch.setattr(sensor_threads, "thread_count", lambda: 2)  # a block each
     threaded = methods.create(name).run(gyr=gyr, acc=acc, mag=mag, t=t, check_units=False)
     np.testing.assert_array_equal(threaded.quat, alone.quat)
     np.testing.assert_array_equal(threaded.flags, alone.flags)

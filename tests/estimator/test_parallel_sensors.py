@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from margtrack import methods, sim
-from margtrack.estimator import compiled
+from margtrack.estimator import compiled, sensor_threads
 from margtrack.estimator.compiled import CompiledEstimator
+from margtrack.kernels import jit
 
 COMPILED = [m for m in methods.available() if issubclass(methods.get(m), CompiledEstimator)]
 
@@ -26,23 +27,23 @@ def _sensors(n_sensors: int = 5, duration_s: float = 3.0):
     return recs[0].t, gyr, acc, mag
 
 
-#: the threaded path (``run_many``) is one template for every method
-#: (``contract.run_series_parallel``); two methods keep its slow compilation out of the rest
-THREADED = ["gyro", "robust"]
-
-
 @pytest.mark.kernel
-@pytest.mark.parametrize(
-    ("name", "threaded"), [(m, False) for m in COMPILED] + [(m, True) for m in THREADED]
-)
+@pytest.mark.parametrize(("name", "threaded"), [(m, t) for m in COMPILED for t in (False, True)])
 def test_threads_over_sensors_equal_each_sensor_alone(name, threaded, monkeypatch):
-    if threaded:
+    parts = []
+    if threaded:  # 5 sensors in 3 threads: parts of 2, 1 and 2 sensors
         monkeypatch.setattr(compiled, "PARALLEL_MIN_SAMPLES", 0)
+        monkeypatch.setattr(sensor_threads, "thread_count", lambda: 3)
+        real = sensor_threads.run_threaded
+        monkeypatch.setattr(compiled, "run_threaded",
+                            lambda *a, **k: parts.append(k) or real(*a, **k))
     t, gyr, acc, mag = _sensors()
     together = methods.create(name).run(gyr=gyr, acc=acc, mag=mag, t=t)
-    run_many = methods.get(name).kernel.run_many
-    if threaded and hasattr(run_many, "signatures"):  # numba: the threaded entry compiled
-        assert run_many.signatures
+    assert parts == ([{"align": 1}] if threaded else [])
+    # the threads call numba's dispatcher: it must release the GIL to run alongside
+    dispatcher = jit.dispatcher(methods.get(name).kernel.run)
+    if hasattr(dispatcher, "targetoptions"):  # (not under NUMBA_DISABLE_JIT: plain Python)
+        assert dispatcher.targetoptions.get("nogil")
     assert together.quat.shape == (5, t.size, 4)
     for s in range(gyr.shape[0]):
         alone = methods.create(name).run(gyr=gyr[s], acc=acc[s], mag=mag[s], t=t)

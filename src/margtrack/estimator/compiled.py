@@ -4,15 +4,18 @@ A :class:`CompiledEstimator` keeps each sensor's state as one flat row (the cont
 slots, ``kernels/contract.py``, then the method's own, named by ``state_layout``) and a
 shared clock. Its kernel module provides four ``@njit`` entry points built on
 ``kernels/contract.py`` (``run``, ``update`` for S sensors, ``update_one`` for one,
-``start``), so the screening,
-the (re)starts and the method's step are one compiled call, and ``update`` repeated N
-times equals ``run`` once (the same inline sample function). ``coefs`` is the screening's
+``start``), so the screening, the (re)starts and the method's step are one compiled call,
+and ``update`` repeated N times equals ``run`` once (the same sample function; ``update``
+and ``update_one`` call it compiled once, the kernel module's ``sample``, ``run`` has it
+inline). Several sensors of a long ``run`` are shared among threads
+(:mod:`~margtrack.estimator.sensor_threads`). ``coefs`` is the screening's
 coefficients followed by the method's (:meth:`CompiledEstimator._coefficients`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from functools import partial
 from types import ModuleType
 from typing import Any, ClassVar, TypeVar
 
@@ -26,8 +29,11 @@ from margtrack.estimator.contract import Estimate, Estimator
 from margtrack.estimator.flags import first_problem
 from margtrack.estimator.outputs import Deferred, Outputs
 from margtrack.estimator.params import Params
+from margtrack.estimator.sensor_threads import run_threaded
 from margtrack.estimator.units import UnitProbe
 from margtrack.kernels import contract as kc
+from margtrack.kernels import contract_lanes as kcl
+from margtrack.kernels import jit
 
 Array = NDArray[np.float64]
 
@@ -36,13 +42,12 @@ __all__ = ["UNRUN", "CompiledEstimator", "CompiledState"]
 
 P = TypeVar("P", bound=Params)
 
-#: several sensors are shared among threads (``kernel.run_many``) from this many samples
-#: in all: below it the threads' start and the parallel kernel's one-time compilation
-#: (tens of seconds per method) cost more than they save
+#: several sensors are shared among threads (:mod:`~margtrack.estimator.sensor_threads`)
+#: from this many samples in all: below it starting the threads costs more than they save
 PARALLEL_MIN_SAMPLES = 100_000
-#: from this many sensors, a kernel module with lockstep entry points (``run_lanes``,
-#: ``run_lanes_many``) runs them in blocks vectorised across the sensors
-#: (``kernels/contract_lanes.py``), with the same results; fewer fill too few vector lanes
+#: from this many sensors, a kernel module with a lockstep entry point (``run_lanes``)
+#: runs them in blocks vectorised across the sensors (``kernels/contract_lanes.py``), with
+#: the same results; fewer fill too few vector lanes
 LANES_MIN_SENSORS = 16
 
 
@@ -108,9 +113,12 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         """The kernel entry point that runs ``n_sensors`` sensors' series: in lockstep blocks
         (LANES_MIN_SENSORS), over threads (``parallel``), or one sensor after the other."""
         kernel = self.kernel
-        if n_sensors >= LANES_MIN_SENSORS and hasattr(kernel, "run_lanes"):
-            return kernel.run_lanes_many if parallel else kernel.run_lanes
-        return kernel.run_many if parallel and n_sensors > 1 else kernel.run
+        lanes = n_sensors >= LANES_MIN_SENSORS and hasattr(kernel, "run_lanes")
+        run = kernel.run_lanes if lanes else kernel.run
+        if not parallel or n_sensors < 2:
+            return run
+        # numba's dispatcher, not an ahead-of-time build: that would hold the GIL
+        return partial(run_threaded, jit.dispatcher(run), align=kcl.LANES if lanes else 1)
 
     def _new_rows(self, n_sensors: int) -> CompiledState:
         rows = np.zeros((n_sensors, self.kernel.N_ROW))

@@ -297,8 +297,10 @@ def recording() -> Iterator[Recorded]:
 
     These are the kernels the block called from Python, plus, on a cold numba cache, the
     kernels those call that numba compiled separately (building those too is harmless).
-    Kernels with options beyond ``cache`` are left out: a build compiles its entry point
-    with pycc's default flags, so a ``fastmath`` entry would not give numba's result.
+    Kernels with options beyond ``cache`` and ``nogil`` are left out: a build compiles its
+    entry point with pycc's default flags, so a ``fastmath`` entry would not give numba's
+    result (a build holds the GIL: callers that need it released call numba's dispatcher,
+    ``jit.dispatcher``).
     """
     recorded = Recorded()
     before = _overloads()
@@ -306,7 +308,7 @@ def recording() -> Iterator[Recorded]:
         yield recorded
     finally:
         for kernel in jit.kernels():
-            if kernel.dispatcher is None or set(kernel.options) - {"cache"}:
+            if kernel.dispatcher is None or set(kernel.options) - {"cache", "nogil"}:
                 continue
             for argtypes, overload in kernel.dispatcher.overloads.items():
                 signature = overload.signature

@@ -350,18 +350,11 @@ def _hold_at(st, o, lanes, coef, xa, xo, outs):
             xa[xo + (X_NULL + k) * outs] = st[i_null] if started else 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
     """S sensors' N samples (``contract.run_series``)."""
     contract.run_series(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
                         q_out, x_out, flags_out)
-
-
-@njit(cache=True, parallel=True)
-def run_many(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples, shared among threads (``contract.run_series_parallel``)."""
-    contract.run_series_parallel(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
-                                 q_out, x_out, flags_out)
 
 
 @njit(cache=True, error_model="numpy", _nrt=False, vector_width=contract_lanes.VECTOR_WIDTH)
@@ -386,24 +379,24 @@ def run_lanes(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out
                               q_out, x_out, flags_out)
 
 
-@njit(cache=True, parallel=True, nogil=True)
-def run_lanes_many(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """:func:`run_lanes` with the blocks shared among threads; the same results."""
-    contract_lanes.run_blocks_parallel(lanes_block, LANES_WIDTH, rows, clock, coefs, t, gyr, acc,
-                                       mag, has, q_out, x_out, flags_out)
+@njit(cache=True)
+def sample(row, coef, scoef, clk, imu, has, q_out, x_out):
+    """One screened sample of one sensor (``contract.sample``), compiled once for
+    :func:`update` and :func:`update_one`."""
+    return contract.sample(_start, _step, _hold, row, coef, scoef, clk, imu, has, q_out, x_out)
 
 
 @njit(cache=True)
 def update(rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out, flags_out):
     """One sample of S sensors (``contract.update_samples``)."""
-    contract.update_samples(_start, _step, _hold, rows, clock, coefs, dt, gyr, acc, mag, has,
+    contract.update_samples(sample, rows, clock, coefs, dt, gyr, acc, mag, has,
                             q_out, x_out, flags_out)
 
 
 @njit(cache=True)
 def update_one(rows, clock, coefs, dt, g, a, m, has, out):
     """One sample of one sensor (``contract.update_one``); returns the flags."""
-    return contract.update_one(_start, _step, _hold, rows, clock, coefs, dt, g, a, m, has, out)
+    return contract.update_one(sample, rows, clock, coefs, dt, g, a, m, has, out)
 
 
 @njit(cache=True)

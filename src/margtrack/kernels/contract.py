@@ -34,7 +34,7 @@ import math
 import numpy as np
 
 from margtrack.kernels import screen
-from margtrack.kernels.jit import njit, prange
+from margtrack.kernels.jit import njit
 from margtrack.kernels.triad import level, reference_triad, triad_unit, unit_pair
 
 K_READY = 0
@@ -165,20 +165,6 @@ def run_series(start, step, hold, rows, clock, coefs, t, gyr, acc, mag, has, q_o
 
 
 @njit(cache=True, inline="always")
-def run_series_parallel(start, step, hold, rows, clock, coefs, t, gyr, acc, mag, has, q_out,
-                        x_out, flags_out):
-    """:func:`run_series` with the sensors shared among threads (``numba.prange``); for an
-    entry point compiled with ``parallel=True``. Each sensor's arithmetic is the same, so
-    the results are identical."""
-    scoef, coef = coefs[:N_SCOEF], coefs[N_SCOEF:]
-    has_mag, has_gyr = (has & 1) != 0, (has & 2) != 0
-    dts, ks, tflags = _clock_series(clock, scoef[screen.C_MAX_GAP], t)
-    for s in prange(rows.shape[0]):
-        _sensor_series(start, step, hold, rows[s], coef, scoef, dts, ks, tflags, gyr[s], acc[s],
-                       mag[s], has_mag, has_gyr, q_out[s], x_out[s], flags_out[s])
-
-
-@njit(cache=True, inline="always")
 def _clock_step(clock, scoef, dt_given):
     """Interval and clock flags of a sample ``dt_given`` s after the last (any, if first)."""
     t = 0.0 if not math.isfinite(clock[0]) else clock[0] + dt_given
@@ -186,35 +172,44 @@ def _clock_step(clock, scoef, dt_given):
 
 
 @njit(cache=True, inline="always")
-def update_samples(start, step, hold, rows, clock, coefs, dt_given, gyr, acc, mag, has,
-                   q_out, x_out, flags_out):
+def sample(start, step, hold, row, coef, scoef, clk, imu, has, q_out, x_out):
+    """:func:`_sample` with the clock's values ``clk`` (dt, k_ref, tflags) and the sample
+    ``imu`` (g0, g1, g2, a0, a1, a2, m0, m1, m2) packed, and the ``has`` bits: the body of
+    a method's compiled ``sample``, the one function its ``update`` and ``update_one``
+    call (so the method's step compiles once for both)."""
+    dt, k_ref, tflags = clk
+    g0, g1, g2, a0, a1, a2, m0, m1, m2 = imu
+    return _sample(start, step, hold, row, coef, scoef, dt, k_ref, tflags, g0, g1, g2, a0, a1,
+                   a2, m0, m1, m2, (has & 1) != 0, (has & 2) != 0, q_out, x_out)
+
+
+@njit(cache=True, inline="always")
+def update_samples(sample, rows, clock, coefs, dt_given, gyr, acc, mag, has, q_out, x_out,
+                   flags_out):
     """One sample of S sensors, ``dt_given`` s after the last: gyr, acc, mag (S, 3);
-    q_out (S, 4), x_out (S, K), flags_out (S,) filled."""
+    q_out (S, 4), x_out (S, K), flags_out (S,) filled; ``sample`` the method's compiled
+    one (:func:`sample`)."""
     scoef, coef = coefs[:N_SCOEF], coefs[N_SCOEF:]
     dt, tflags = _clock_step(clock, scoef, dt_given)
-    k_ref = screen.ref_gain(dt)
+    clk = (dt, screen.ref_gain(dt), tflags)
     for s in range(rows.shape[0]):
-        flags_out[s] = _sample(
-            start, step, hold, rows[s], coef, scoef, dt, k_ref, tflags,
-            gyr[s, 0], gyr[s, 1], gyr[s, 2], acc[s, 0], acc[s, 1], acc[s, 2],
-            mag[s, 0], mag[s, 1], mag[s, 2], (has & 1) != 0, (has & 2) != 0,
-            q_out[s], x_out[s],
+        flags_out[s] = sample(
+            rows[s], coef, scoef, clk, (gyr[s, 0], gyr[s, 1], gyr[s, 2], acc[s, 0], acc[s, 1],
+                                        acc[s, 2], mag[s, 0], mag[s, 1], mag[s, 2]),
+            has, q_out[s], x_out[s],
         )
 
 
 @njit(cache=True, inline="always")
-def update_one(start, step, hold, rows, clock, coefs, dt_given, g, a, m, has, out):
+def update_one(sample, rows, clock, coefs, dt_given, g, a, m, has, out):
     """One sample of one sensor: g, a, m (3,); out (4 + K,) gets q then the extra outputs.
 
     Returns the flags. The lean path of ``update`` (few arguments, nothing allocated).
     """
     scoef, coef = coefs[:N_SCOEF], coefs[N_SCOEF:]
     dt, tflags = _clock_step(clock, scoef, dt_given)
-    return _sample(
-        start, step, hold, rows[0], coef, scoef, dt, screen.ref_gain(dt), tflags, g[0], g[1],
-        g[2], a[0], a[1], a[2], m[0], m[1], m[2], (has & 1) != 0, (has & 2) != 0, out[:4],
-        out[4:],
-    )
+    return sample(rows[0], coef, scoef, (dt, screen.ref_gain(dt), tflags),
+                  (g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2]), has, out[:4], out[4:])
 
 
 @njit(cache=True, inline="always")

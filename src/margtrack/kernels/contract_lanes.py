@@ -35,7 +35,7 @@ import numpy as np
 
 from margtrack.kernels import contract, screen
 from margtrack.kernels.contract import INITIALISING, K_Q, K_READY, K_SCREEN, K_STARTS
-from margtrack.kernels.jit import njit, prange
+from margtrack.kernels.jit import njit
 
 #: sensors per block: 4 AVX-512 vectors; a block's buffer (about 70 slots) stays in L1
 LANES = 32
@@ -178,17 +178,5 @@ def run_blocks(block_kernel, width, rows, clock, coefs, t, gyr, acc, mag, has, q
     dts, ks, tflags = contract._clock_series(clock, coefs[screen.C_MAX_GAP], t)
     st = np.empty(width * LANES)
     for b in range((rows.shape[0] + LANES - 1) // LANES):
-        block_kernel(st, rows, b * LANES, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out,
-                     x_out, flags_out)
-
-
-@njit(cache=True, inline="always")
-def run_blocks_parallel(block_kernel, width, rows, clock, coefs, t, gyr, acc, mag, has, q_out,
-                        x_out, flags_out):
-    """:func:`run_blocks` with the blocks shared among threads (``numba.prange``), for an
-    entry point compiled with ``parallel=True``; the same results."""
-    dts, ks, tflags = contract._clock_series(clock, coefs[screen.C_MAX_GAP], t)
-    for b in prange((rows.shape[0] + LANES - 1) // LANES):
-        st = np.empty(width * LANES)
         block_kernel(st, rows, b * LANES, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out,
                      x_out, flags_out)

@@ -76,7 +76,7 @@ Screened samples (``margtrack.estimator.screening``) and degenerate pairs:
   update that would leave a zero or non-finite quaternion is undone (``NOT_PD``).
 
 On ``kernels/contract.py``: :func:`_start`, :func:`_step`, :func:`_hold` over one sensor's
-row and the entry points ``run``, ``run_many``, ``update``, ``update_one``, ``start``. The
+row and the entry points ``run``, ``sample``, ``update``, ``update_one``, ``start``. The
 step is written once for a state of ``n`` = 7 or 10 numbers (:mod:`margtrack.kernels.ekf_step`:
 ``start_n``, ``step_n``, ``hold_n``, inlined with ``n`` constant; the layouts below are
 defined there and re-exported here). Row layout after the
@@ -233,7 +233,7 @@ __all__ = [
     "out_offsets",
     "process_noise",
     "run",
-    "run_many",
+    "sample",
     "start",
     "start_n",
     "step_n",
@@ -261,31 +261,31 @@ def _hold(row, coef, x_out):
     hold_n(row, coef, x_out, N)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
     """S sensors' N samples (``contract.run_series``)."""
     contract.run_series(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
                         q_out, x_out, flags_out)
 
 
-@njit(cache=True, parallel=True)
-def run_many(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples, shared among threads (``contract.run_series_parallel``)."""
-    contract.run_series_parallel(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
-                                 q_out, x_out, flags_out)
+@njit(cache=True)
+def sample(row, coef, scoef, clk, imu, has, q_out, x_out):
+    """One screened sample of one sensor (``contract.sample``), compiled once for
+    :func:`update` and :func:`update_one`."""
+    return contract.sample(_start, _step, _hold, row, coef, scoef, clk, imu, has, q_out, x_out)
 
 
 @njit(cache=True)
 def update(rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out, flags_out):
     """One sample of S sensors (``contract.update_samples``)."""
-    contract.update_samples(_start, _step, _hold, rows, clock, coefs, dt, gyr, acc, mag, has,
+    contract.update_samples(sample, rows, clock, coefs, dt, gyr, acc, mag, has,
                             q_out, x_out, flags_out)
 
 
 @njit(cache=True)
 def update_one(rows, clock, coefs, dt, g, a, m, has, out):
     """One sample of one sensor (``contract.update_one``); returns the flags."""
-    return contract.update_one(_start, _step, _hold, rows, clock, coefs, dt, g, a, m, has, out)
+    return contract.update_one(sample, rows, clock, coefs, dt, g, a, m, has, out)
 
 
 @njit(cache=True)

@@ -27,12 +27,12 @@ gravity component in the body m/s², ``X_LIN_ACC`` (3) the earth-frame linear ac
 m/s², ``X_IGNORED`` (1) the filter's ``ignored`` bits below (method detail; :func:`_step`
 returns them as ``Flag`` bits).
 
-``run`` and ``run_many`` keep per sample only what those outputs are computed from
+``run`` and ``run_lanes`` keep per sample only what those outputs are computed from
 (``x_run``: ``L_ACC`` (3) the screened accelerometer sample, ``L_IGNORED`` the bits):
 :func:`expand` computes them with the same formulas from the output orientations, when
 they are read (``estimator.compiled``: ``Estimate.outputs`` is lazy).
 
-Entry points: ``run``, ``run_many``, ``update``, ``update_one``, ``start`` (``contract``'s
+Entry points: ``run``, ``run_lanes``, ``update``, ``update_one``, ``start`` (``contract``'s
 templates with :func:`_start`, :func:`_step` (or :func:`_step_lean`), :func:`_hold`),
 :func:`expand`, and :func:`steps` (the step alone, for tests).
 """
@@ -361,20 +361,12 @@ def _has(coefs, has):
     return has if coefs[contract.N_SCOEF + C_USE_MAG] > 0.5 else has & ~1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
     """S sensors' N samples (``contract.run_series``); x_out (S, N, N_LEAN) for
     :func:`expand`."""
     contract.run_series(_start, _step_lean, _hold_lean, rows, clock, coefs, t, gyr, acc, mag,
                         _has(coefs, has), q_out, x_out, flags_out)
-
-
-@njit(cache=True, parallel=True)
-def run_many(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples, shared among threads (``contract.run_series_parallel``); x_out
-    (S, N, N_LEAN) for :func:`expand`."""
-    contract.run_series_parallel(_start, _step_lean, _hold_lean, rows, clock, coefs, t, gyr, acc,
-                                 mag, _has(coefs, has), q_out, x_out, flags_out)
 
 
 @njit(cache=True, error_model="numpy", _nrt=False, vector_width=contract_lanes.VECTOR_WIDTH)
@@ -400,24 +392,24 @@ def run_lanes(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out
                               q_out, x_out, flags_out)
 
 
-@njit(cache=True, parallel=True, nogil=True)
-def run_lanes_many(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """:func:`run_lanes` with the blocks shared among threads; the same results."""
-    contract_lanes.run_blocks_parallel(lanes_block, LANES_WIDTH, rows, clock, coefs, t, gyr, acc,
-                                       mag, has, q_out, x_out, flags_out)
+@njit(cache=True)
+def sample(row, coef, scoef, clk, imu, has, q_out, x_out):
+    """One screened sample of one sensor (``contract.sample``), compiled once for
+    :func:`update` and :func:`update_one`."""
+    return contract.sample(_start, _step, _hold, row, coef, scoef, clk, imu, has, q_out, x_out)
 
 
 @njit(cache=True)
 def update(rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out, flags_out):
     """One sample of S sensors (``contract.update_samples``)."""
-    contract.update_samples(_start, _step, _hold, rows, clock, coefs, dt, gyr, acc, mag,
+    contract.update_samples(sample, rows, clock, coefs, dt, gyr, acc, mag,
                             _has(coefs, has), q_out, x_out, flags_out)
 
 
 @njit(cache=True)
 def update_one(rows, clock, coefs, dt, g, a, m, has, out):
     """One sample of one sensor (``contract.update_one``); returns the flags."""
-    return contract.update_one(_start, _step, _hold, rows, clock, coefs, dt, g, a, m,
+    return contract.update_one(sample, rows, clock, coefs, dt, g, a, m,
                                _has(coefs, has), out)
 
 

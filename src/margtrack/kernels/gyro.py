@@ -35,31 +35,31 @@ def _hold(row, coef, x_out):
     """Nothing to write: plain integration has no extra outputs."""
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
     """S sensors' N samples (``contract.run_series``)."""
     contract.run_series(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
                         q_out, x_out, flags_out)
 
 
-@njit(cache=True, parallel=True)
-def run_many(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples, shared among threads (``contract.run_series_parallel``)."""
-    contract.run_series_parallel(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
-                                 q_out, x_out, flags_out)
+@njit(cache=True)
+def sample(row, coef, scoef, clk, imu, has, q_out, x_out):
+    """One screened sample of one sensor (``contract.sample``), compiled once for
+    :func:`update` and :func:`update_one`."""
+    return contract.sample(_start, _step, _hold, row, coef, scoef, clk, imu, has, q_out, x_out)
 
 
 @njit(cache=True)
 def update(rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out, flags_out):
     """One sample of S sensors (``contract.update_samples``)."""
-    contract.update_samples(_start, _step, _hold, rows, clock, coefs, dt, gyr, acc, mag, has,
+    contract.update_samples(sample, rows, clock, coefs, dt, gyr, acc, mag, has,
                             q_out, x_out, flags_out)
 
 
 @njit(cache=True)
 def update_one(rows, clock, coefs, dt, g, a, m, has, out):
     """One sample of one sensor (``contract.update_one``); returns the flags."""
-    return contract.update_one(_start, _step, _hold, rows, clock, coefs, dt, g, a, m, has, out)
+    return contract.update_one(sample, rows, clock, coefs, dt, g, a, m, has, out)
 
 
 @njit(cache=True)

@@ -26,8 +26,8 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 __all__ = [
-    "LazyKernel", "kernels", "literally", "njit", "numba_loaded", "on_numba_load", "prange",
-    "resolve_all", "to_fixed_tuple",
+    "LazyKernel", "dispatcher", "kernels", "literally", "njit", "numba_loaded", "on_numba_load",
+    "prange", "resolve_all", "to_fixed_tuple",
 ]
 
 
@@ -231,6 +231,13 @@ def on_numba_load(callback: Callable[[], None]) -> Callable[[], None]:
             _ON_LOAD.remove(callback)
 
     return remove
+
+
+def dispatcher(kernel: Any) -> Any:
+    """The numba dispatcher of ``kernel`` (a :class:`LazyKernel` or already a dispatcher),
+    numba imported if it is not yet: for calls that must not go to an ahead-of-time build
+    (which holds the GIL)."""
+    return kernel.resolve() if isinstance(kernel, LazyKernel) else kernel
 
 
 def resolve_all() -> None:

@@ -48,8 +48,8 @@ Array = NDArray[np.float64]
 
 #: the engine shares a batch's sensors among threads from this many samples a call (4 frames
 #: of 5000 sensors): its batches are a few frames, far below the ``run`` threshold
-#: (:data:`~margtrack.estimator.compiled.PARALLEL_MIN_SAMPLES`), and a live session pays
-#: the parallel kernel's one-time loading (or compilation) once
+#: (:data:`~margtrack.estimator.compiled.PARALLEL_MIN_SAMPLES`); starting the threads costs
+#: tens of microseconds a call
 LIVE_PARALLEL_MIN_SAMPLES = 20_000
 
 __all__ = ["LIVE_PARALLEL_MIN_SAMPLES", "SensorFilters", "hold_where"]

@@ -1,0 +1,83 @@
+"""Several sensors' series shared among threads, each thread running the serial kernel.
+
+A method's series kernels (``run``, ``run_lanes``) release the GIL (``nogil``), so Python
+threads run them at the same time on disjoint slices of the sensors. The sensors are
+independent and each gets the same arithmetic as in one call, so the results are the same
+to the bit; the shared clock is advanced by every thread on its own copy (the same
+timestamps give the same clock). No kernel is compiled for this: a ``parallel=True``
+kernel (``numba.prange``) would be a second compilation of the whole method, tens of
+seconds each.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+__all__ = ["run_threaded", "thread_count"]
+
+
+def thread_count() -> int:
+    """Threads for the sensors: numba's (``NUMBA_NUM_THREADS``, ``numba.set_num_threads``)."""
+    import numba
+
+    return int(numba.get_num_threads())
+
+
+def run_threaded(
+    run: Callable[..., Any],
+    rows: np.ndarray,
+    clock: np.ndarray,
+    coefs: np.ndarray,
+    t: np.ndarray,
+    gyr: np.ndarray,
+    acc: np.ndarray,
+    mag: np.ndarray,
+    has: int,
+    q_out: np.ndarray,
+    x_out: np.ndarray,
+    flags_out: np.ndarray,
+    *,
+    align: int = 1,
+    n_threads: int | None = None,
+) -> None:
+    """``run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out)`` over
+    S sensors (the first axis of rows, gyr, acc, mag, q_out, x_out, flags_out), split into
+    ``n_threads`` contiguous parts (default :func:`thread_count`) whose bounds are multiples
+    of ``align`` sensors (a lockstep kernel's block).
+
+    ``clock`` (1,) ends as one call over all the sensors leaves it. A part that raises
+    leaves its sensors part-way; the others finish, then the first error is raised.
+    """
+    n_sensors = rows.shape[0]
+    blocks = -(-n_sensors // align)
+    n_threads = max(1, min(thread_count() if n_threads is None else n_threads, blocks))
+    if n_threads == 1:
+        run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out)
+        return
+    edges = [min(n_sensors, blocks * k // n_threads * align) for k in range(n_threads + 1)]
+    clocks = [clock.copy() for _ in range(n_threads)]
+    errors: list[BaseException | None] = [None] * n_threads
+
+    def part(k: int) -> None:
+        a, b = edges[k], edges[k + 1]
+        try:
+            run(rows[a:b], clocks[k], coefs, t, gyr[a:b], acc[a:b], mag[a:b], has, q_out[a:b],
+                x_out[a:b], flags_out[a:b])
+        except BaseException as exc:  # raised in the caller's thread below
+            errors[k] = exc
+
+    threads = [threading.Thread(target=part, args=(k,), name=f"margtrack-sensors-{k}",
+                                daemon=True) for k in range(1, n_threads)]
+    for thread in threads:
+        thread.start()
+    part(0)
+    for thread in threads:
+        thread.join()
+    clock[:] = clocks[0]
+    for exc in errors:
+        if exc is not None:
+            raise exc
