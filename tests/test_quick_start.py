@@ -54,15 +54,16 @@ def test_importing_kernels_does_not_import_numba(tmp_path):
 def test_first_call_makes_every_kernel_a_numba_dispatcher():
     import numba
     from numba.core.registry import CPUDispatcher
+    from numba.np.unsafe.ndarray import to_fixed_tuple
 
-    from margtrack.kernels import contract, ekf_step, robust, screen
+    from margtrack.kernels import contract, ekf_step, gradient, robust, screen
 
     rows, twin = np.zeros((2, screen.N_SCREEN)), np.zeros((2, screen.N_SCREEN))
     screen.fresh(rows)  # a first call (or a later one: the result is the same)
     screen.fresh.py_func(twin)
     assert jit.numba_loaded()
     assert isinstance(robust.run, CPUDispatcher) and isinstance(contract.run_series, CPUDispatcher)
-    assert contract.prange is numba.prange
+    assert gradient.to_fixed_tuple is to_fixed_tuple
     assert ekf_step.literally is numba.literally  # the placeholder is rebound too
     np.testing.assert_array_equal(rows, twin)  # NaN where the Python twin puts NaN
 

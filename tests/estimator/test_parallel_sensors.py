@@ -39,7 +39,8 @@ def test_threads_over_sensors_equal_each_sensor_alone(name, threaded, monkeypatc
                             lambda *a, **k: parts.append(k) or real(*a, **k))
     t, gyr, acc, mag = _sensors()
     together = methods.create(name).run(gyr=gyr, acc=acc, mag=mag, t=t)
-    assert parts == ([{"align": 1}] if threaded else [])
+    # (an offline method runs its kernel more than once)
+    assert (len(parts) > 0 and all(k == {"align": 1} for k in parts)) if threaded else not parts
     # the threads call numba's dispatcher: it must release the GIL to run alongside
     dispatcher = jit.dispatcher(methods.get(name).kernel.run)
     if hasattr(dispatcher, "targetoptions"):  # (not under NUMBA_DISABLE_JIT: plain Python)

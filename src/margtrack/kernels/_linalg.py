@@ -1,4 +1,4 @@
-"""Small dense linear algebra for the Kalman kernels: Cholesky factor and Kalman gain.
+"""Small dense linear algebra for the kernels: Cholesky factor, Kalman gain, 3x3 adjugate.
 
 Explicit loops over fixed-size buffers: for the 3-9 dimensional systems of the filters
 they are several times faster in numba than ``np.linalg`` calls, which allocate.
@@ -59,3 +59,17 @@ def add_kalman_gain(chol, m, rhs, innov, x, y, gain):
     ``rhs`` replace the inverse of ``S``.
     """
     add_kalman_gain_n(chol, m, x.shape[0], rhs, innov, x, y, gain)
+
+
+@njit(cache=True, inline="always")
+def sym3_adjugate(a00, a01, a02, a11, a12, a22):
+    """Adjugate and determinant of the symmetric 3x3 matrix with upper triangle a00 ... a22:
+    (c00, c01, c02, c11, c12, c22, det), the adjugate's upper triangle; the inverse is the
+    adjugate / det."""
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    return c00, c01, c02, c11, c12, c22, a00 * c00 + a01 * c01 + a02 * c02

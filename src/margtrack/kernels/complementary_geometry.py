@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 
+from margtrack.kernels._linalg import sym3_adjugate
 from margtrack.kernels._quat import cross, mul
 from margtrack.kernels.jit import njit
 from margtrack.kernels.triad import rotate
@@ -74,13 +75,7 @@ def cofactors(mx, my, mz, nx, ny, nz):
     a11 = 2.0 - my * my - ny * ny
     a12 = -my * mz - ny * nz
     a22 = 2.0 - mz * mz - nz * nz
-    c00 = a11 * a22 - a12 * a12
-    c01 = a02 * a12 - a01 * a22
-    c02 = a01 * a12 - a02 * a11
-    c11 = a00 * a22 - a02 * a02
-    c12 = a01 * a02 - a00 * a12
-    c22 = a00 * a11 - a01 * a01
-    det = a00 * c00 + a01 * c01 + a02 * c02  # 2 sin² γ
+    c00, c01, c02, c11, c12, c22, det = sym3_adjugate(a00, a01, a02, a11, a12, a22)  # det: 2 sin² γ
     usable = not (math.isnan(nx) or math.isnan(ny) or math.isnan(nz))
     if not det > 1e-12:
         usable = False

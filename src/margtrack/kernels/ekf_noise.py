@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 
+from margtrack.kernels._linalg import sym3_adjugate
 from margtrack.kernels.ekf_model import scalar_update
 from margtrack.kernels.jit import njit
 
@@ -68,13 +69,7 @@ def rotation_covariance(ax, ay, az, mx, my, mz, rho, s_a, s_m):
     a12 = -ay * az - r2 * my * mz
     a22 = d - az * az - r2 * mz * mz
     # its inverse by the adjugate
-    i00 = a11 * a22 - a12 * a12
-    i01 = a02 * a12 - a01 * a22
-    i02 = a01 * a12 - a02 * a11
-    i11 = a00 * a22 - a02 * a02
-    i12 = a01 * a02 - a00 * a12
-    i22 = a00 * a11 - a01 * a01
-    det = a00 * i00 + a01 * i01 + a02 * i02
+    i00, i01, i02, i11, i12, i22, det = sym3_adjugate(a00, a01, a02, a11, a12, a22)
     if not (det > 1e-12 and det < math.inf):
         return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     inv = 1.0 / det

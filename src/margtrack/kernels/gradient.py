@@ -299,7 +299,7 @@ def _step_lean(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out
 
 @njit(cache=True, inline="always")
 def _step_lean_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, qa, qo,
-                  xa, xo, outs, steady=False):
+                  xa, xo, outs, steady):
     """:func:`_step_lean` on the row at ``st[o + j * lanes]``, writing output k of q to
     ``qa[qo + k * outs]`` and of x_run to ``xa[xo + k * outs]`` (``contract_lanes``; the
     step has no rare branch, so ``steady`` changes nothing)."""

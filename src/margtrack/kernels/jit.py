@@ -1,7 +1,7 @@
-"""numba's ``njit``, ``prange`` and ``literally``, numba imported when a kernel first runs.
+"""numba's ``njit``, ``literally``, ``to_fixed_tuple``; numba imported when a kernel first runs.
 
-Kernel modules take ``njit``, ``prange`` and ``literally`` from here instead of from numba.
-Importing numba and loading its registries costs about half a second in every new process,
+Kernel modules take ``njit``, ``literally`` and ``to_fixed_tuple`` from here instead of from
+numba. Importing numba and loading its registries costs about half a second in every new process,
 whatever the kernel, so a kernel defined here is a :class:`LazyKernel` until it is first
 called from Python. That call
 
@@ -9,7 +9,7 @@ called from Python. That call
    (:mod:`margtrack.kernels.aot`; numba is then never imported), or else
 2. imports numba once and turns *every* kernel defined so far into a real numba dispatcher
    (same options, same ``cache=True`` files), rebinding the module globals that name a
-   kernel, ``prange`` or ``literally``, so kernels calling kernels compile exactly as
+   kernel, ``literally`` or ``to_fixed_tuple``, so kernels calling kernels compile exactly as
    before. Kernels defined after that are numba dispatchers from the start.
 
 The registry of kernels is process-wide by nature (numba's own dispatchers are too).
@@ -27,18 +27,8 @@ from typing import Any
 
 __all__ = [
     "LazyKernel", "dispatcher", "kernels", "literally", "njit", "numba_loaded", "on_numba_load",
-    "prange", "resolve_all", "to_fixed_tuple",
+    "resolve_all", "to_fixed_tuple",
 ]
-
-
-class _PrangePlaceholder:
-    """Stands for ``numba.prange`` in kernel modules until numba is imported."""
-
-    def __call__(self, *args: int) -> range:  # pure Python use, as numba.prange does
-        return range(*args)
-
-    def __repr__(self) -> str:
-        return "prange (numba not imported yet)"
 
 
 class _LiterallyPlaceholder:
@@ -61,7 +51,6 @@ class _ToFixedTuplePlaceholder:
         return "to_fixed_tuple (numba not imported yet)"
 
 
-prange: Any = _PrangePlaceholder()
 #: ``literally(n)`` in a kernel compiles it once per constant value of n at its call sites
 #: (numba's literal dispatch): a size fixed at compile time without inlining the kernel
 literally: Any = _LiterallyPlaceholder()
@@ -256,7 +245,6 @@ def resolve_all() -> None:
         from numba.np.unsafe.ndarray import to_fixed_tuple as real_to_fixed_tuple
 
         placeholders = {
-            _PrangePlaceholder: numba.prange,
             _LiterallyPlaceholder: numba.literally,
             _ToFixedTuplePlaceholder: real_to_fixed_tuple,
         }
@@ -274,7 +262,7 @@ def kernels() -> list[LazyKernel]:
 
 
 def _rebind(real: dict[int, Any], placeholders: dict[type, Any]) -> None:
-    """Point every module global naming a kernel (or a placeholder: ``prange``, ``literally``,
+    """Point every module global naming a kernel (or a placeholder: ``literally``,
     ``to_fixed_tuple``) at the real object."""
     for module in list(sys.modules.values()):
         names = getattr(module, "__dict__", None)
