@@ -12,11 +12,13 @@ A method provides three inline functions over one sensor's flat state row ``row`
   ``x_out`` (K,); returns its own flag bits (REST, MAG_DISTURBED, ACC_IGNORED ...);
 - ``hold(row, coef, x_out)``: the extra outputs of the current state, for held samples.
 
-and wraps :func:`run_series`, :func:`update_samples`, :func:`update_one` and
-:func:`start_rows` in ``@njit`` functions of its own (``run``, ``update``, ``update_one``,
-``start``) with its functions as the first arguments (numba then compiles, inlines and
-caches one specialisation per method). All go through the same :func:`_sample`, so N
-updates equal one run.
+and wraps them in ``@njit`` functions of its own: ``run`` (:func:`run_series` with its
+functions as the first arguments: numba compiles, inlines and caches one specialisation
+per method; ``nogil``, so threads can share the sensors), ``sample`` (:func:`sample`
+with its functions, compiled once), ``update`` and ``update_one`` (:func:`update_samples`,
+:func:`update_one` with its ``sample``: its step is compiled once for both, not inlined
+into each) and ``start`` (:func:`start_rows`). All go through the same :func:`_sample`,
+so N updates equal one run.
 
 ``contract_lanes`` runs the same samples for blocks of sensors in lockstep, vectorised
 across them, with the same results, for a method that also provides its functions in
