@@ -19,7 +19,10 @@ of 3 with compilation excluded:
   (which uses the magnetometer only when the object's ``mag`` attribute is set: it is);
 
 with ratios to vqf's batch (batch rows) and to ``MarinsEkf.update`` (live rows). The
-cost of approach 1 relative to approach 2 is 001's argument for approach 2.
+cost of approach 1 relative to approach 2 is 001's argument for approach 2. Last, the two
+floors in ns per sample, one thread (``multi_sensor_speed.print_floors``: the bytes a 9-D
+filter moves per sample at the measured copy bandwidth, and one quaternion integration
+step), beside which the batch rows' ns/sample stand.
 """
 
 from __future__ import annotations
@@ -108,6 +111,9 @@ def main() -> None:
     ], reference, "vqf")
     print("\nlive, one sample per call")
     print_table([(update, "validation, state copy, kernel"), (ahrs_update, "")], update, "update")
+    from multi_sensor_speed import print_floors  # the sibling benchmark's floors
+
+    print_floors(gyr)
 
 
 if __name__ == "__main__":

@@ -341,13 +341,17 @@ def main() -> None:
     base = base_signals()
     print(f"live engine scale at {RATE_HZ:.0f} Hz, 15 sensors per person, display 25 Hz, "
           f"{args.seconds} s real-time runs, {os.cpu_count()} CPUs, {load()}")
+    from multi_sensor_speed import print_floors  # the sibling benchmark's floors
+
+    print_floors(base[1].reshape(-1, 3))  # the simulated people's rates, one after another
     summary = []
     for method in args.methods:
         name = methods.get(method).name
         rates = filter_rates(method)
         kernel_rate = rates["kernel"]
         print(f"\n{name}: one batch of 100000 sensors x 4 frames: kernel alone "
-              f"{kernel_rate / 1e6:.2f} M samples/s ({kernel_rate / RATE_HZ:.0f} sensors at "
+              f"{kernel_rate / 1e6:.2f} M samples/s ({1e9 / kernel_rate:.1f} ns/sample over "
+              f"the threads; {kernel_rate / RATE_HZ:.0f} sensors at "
               f"100 Hz), the engine's run_into {rates['run_into'] / 1e6:.2f} M samples/s "
               f"({rates['run_into'] / kernel_rate:.2f} x kernel), run() "
               f"{rates['run'] / 1e6:.2f} M samples/s ({rates['run'] / kernel_rate:.2f} x kernel) "

@@ -13,7 +13,9 @@ Python loop takes seconds) per estimator on the same samples. Times are process 
 so other processes on a shared machine slow neither side. Printed: samples/s, µs/sample,
 the ratio to the ahrs counterpart (TRIAD/TRIAD, FQA/FQA, QUEST/QUEST, Davenport/Davenport;
 Gauss-Newton and Newton, which ahrs lacks, against ahrs's QUEST, its fastest of the
-three named in issue 3) and to the slowest and fastest ahrs estimator measured.
+three named in issue 3) and to the slowest and fastest ahrs estimator measured; last, the
+floors of ``multi_sensor_speed.print_floors`` in ns per sample (a single-frame estimator has
+no serial chain: the memory floor is its limit).
 """
 
 from __future__ import annotations
@@ -80,6 +82,9 @@ def main() -> None:
     else:
         print(f"\nfqa / quest = {ours['fqa'] / ours['quest']:.2f} "
               "(002 III-D: FQA 25 % faster than QUEST in MATLAB, 1.25)")
+    from multi_sensor_speed import print_floors  # the sibling benchmark's floors
+
+    print_floors(rec.gyr)  # (no serial chain in a single-frame estimator: the memory floor)
 
 
 if __name__ == "__main__":

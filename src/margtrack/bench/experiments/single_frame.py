@@ -330,7 +330,8 @@ def speed_table(rec: Recording, repeats: int = 5, ahrs_repeats: int = 1) -> dict
 
 #: the ahrs estimator each margtrack estimator is compared with (GN/Newton: the fastest)
 COUNTERPART = {"triad": "ahrs TRIAD", "fqa": "ahrs FQA", "quest": "ahrs QUEST",
-               "davenport": "ahrs Davenport", "gauss-newton": "ahrs QUEST", "newton": "ahrs QUEST"}
+               "davenport": "ahrs Davenport", "gauss-newton": "ahrs QUEST", "newton": "ahrs QUEST",
+               "quest-newton": "ahrs QUEST"}
 
 
 def single_frame_speed(out_dir: Path, quick: bool) -> ExperimentResult:
