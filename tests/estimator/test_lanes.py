@@ -18,7 +18,7 @@ from margtrack import io, methods, sim
 from margtrack.estimator import compiled, sensor_threads
 from margtrack.kernels import contract_lanes, jit
 
-LOCKSTEP = ["gradient", "bachmann"]
+LOCKSTEP = ["gradient", "bachmann", "robust"]
 #: one full block and a partial one, so lanes at both ends of a block are checked
 N_SENSORS = contract_lanes.LANES + 5
 BROAD = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "broad"
@@ -91,7 +91,9 @@ def _assert_same_run(a, b):
      ("bachmann", {}), ("bachmann", {"correction_interval": 3, "round_robin": True}),
      ("bachmann", {"mag_reference": (0.0, 0.5, -0.8), "gravity_reference": (0.0, 0.1, 1.0),
                    "gyr_null_rest_s": 0.0, "frame": "NED"}),
-     ("bachmann-accmag", {})],
+     ("bachmann-accmag", {}),
+     ("robust", {}), ("robust", {"frame": "NED", "mag_norm_ref": 50.0}),
+     ("robust", {"converge_s": 0.0, "rest_min_s": 0.2})],
 )
 def test_lockstep_equals_sensor_by_sensor_under_faults(name, params, monkeypatch):
     t, gyr, acc, mag = _faulty_sensors()
@@ -159,7 +161,7 @@ def test_lockstep_equals_each_sensor_alone_on_broad(name):
 @pytest.mark.kernel
 @pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"),
                     reason="numba's JIT is off: nothing is compiled, so nothing vectorised")
-@pytest.mark.parametrize("name", ["gradient"])  # compiled afresh: 1-2 minutes a method
+@pytest.mark.parametrize("name", ["gradient", "robust"])  # compiled afresh: 1 minute each
 def test_lockstep_block_is_vectorised(name, capfd):
     """The loop over lanes compiles to 8-wide vector arithmetic (``jit``'s vector_width),
     and gives the block's results (compiled afresh here: numba's cache keeps no IR); LLVM's

@@ -181,7 +181,7 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
 
 
 @njit(cache=True, inline="always")
-def _rare_at(st, o, lanes, coef, has_mag, m0, m1, m2):
+def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     """Whether a sample takes one of :func:`_step_at`'s rare branches (the start's turn onto
     explicit references, measuring the field reference, setting the heading): those run
     in ``contract_lanes``' scalar pass, the rest vectorised."""

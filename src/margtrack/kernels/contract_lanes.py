@@ -15,10 +15,11 @@ A method provides its ``contract`` functions in strided form: the row's slot j a
 - ``step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, qa, qo,
   xa, xo, outs, steady)``, returning its flag bits;
 - ``hold_at(st, o, lanes, coef, xa, xo, outs)``;
-- ``rare_at(st, o, lanes, coef, has_mag, m0, m1, m2)``: whether this sample takes a rare
-  branch of the step (a call or a loop the vectoriser cannot take: Bachmann's heading set
-  from the field, say). The vector pass calls ``step_at`` with the constant
-  ``steady=True`` for the other lanes, so the step leaves those branches out of its code.
+- ``rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2)``: whether this
+  sample (as screened) takes a rare branch of the step (a call or a loop the vectoriser
+  cannot take: Bachmann's heading set from the field, say). The vector pass calls
+  ``step_at`` with the constant ``steady=True`` for the other lanes, so the step leaves
+  those branches out of its code.
 
 (Re)starts are rare (the first usable sample, after a gap) and call TRIAD: they, and the
 rare steps, run in a scalar pass over the lanes that need them, after the vector pass,
@@ -76,7 +77,8 @@ def _lane(step_at, rare_at, st, o, n_row, coef, scoef, dt, k_ref, tflags, has_ma
         st[o + K_READY * lanes] = 0.0
     scalar = RESTART
     if st[o + K_READY * lanes] != 0.0:
-        scalar = STEP if rare_at(st, o, lanes, coef, has_mag, m0, m1, m2) else 0.0
+        rare = rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2)
+        scalar = STEP if rare else 0.0
     i_q = o + (n_row + B_Q) * lanes
     if scalar == 0.0:
         f |= step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag,

@@ -326,7 +326,7 @@ def _hold_lean(row, coef, x_run):
 
 
 @njit(cache=True, inline="always")
-def _rare_at(st, o, lanes, coef, has_mag, m0, m1, m2):
+def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     """No sample takes a rare branch of the step (``contract_lanes``)."""
     return False
 

@@ -64,41 +64,91 @@ def _bw_hold(b0, a1, a2, x):
 
 
 @njit(cache=True, inline="always")
-def _gains_match(row, g, coef, step):
-    """Whether the gains of the slot at ``row[g:]`` were computed for this interval and
-    these time constants."""
+def _slot_matches_at(st, o, lanes, g, coef, step):
+    """Whether the gains of the slot at row offset ``g`` (the row's slot j at
+    ``st[o + j * lanes]``) were computed for this interval and these time constants."""
+    i = o + g * lanes
     return (
-        row[g + G_DT] == step
-        and row[g + G_TAU_ACC] == coef[C_TAU_ACC]
-        and row[g + G_TAU_MAG] == coef[C_TAU_MAG]
-        and row[g + G_REST_TAU] == coef[C_REST_TAU]
-        and row[g + G_REF_TAU] == coef[C_MAG_REF_TAU]
+        st[i + G_DT * lanes] == step
+        and st[i + G_TAU_ACC * lanes] == coef[C_TAU_ACC]
+        and st[i + G_TAU_MAG * lanes] == coef[C_TAU_MAG]
+        and st[i + G_REST_TAU * lanes] == coef[C_REST_TAU]
+        and st[i + G_REF_TAU * lanes] == coef[C_MAG_REF_TAU]
     )
 
 
 @njit(cache=True, inline="always")
-def _gains(row, coef, step):
-    """The offset of the slot holding the gains for interval ``step``; computed (3 ``exp``,
-    a ``tan``) only when neither slot has them for this interval and the time constants.
+def gains_at(st, o, lanes, coef, step):
+    """The row offset of the slot holding the gains for interval ``step``; computed (3
+    ``exp``, a ``tan``) only when neither slot has them for this interval and the time
+    constants. The row's slot j is ``st[o + j * lanes]`` (``(row, 0, 1)`` for one row).
 
     Timestamps of a steady rate give intervals that differ in the last bits (``t = i /
     rate`` has 2-3 distinct differences in turn; BROAD's clock 21): one slot recomputed
     them at 40-65 % of the samples, two at 0.05 %. The values are those of a fresh
     computation (the same function of the same numbers)."""
-    g = R_GAINS + (N_GAINS if row[R_GAINS_IN_USE] == N_GAINS else 0)  # any value: a slot
-    if _gains_match(row, g, coef, step):
+    i_use = o + R_GAINS_IN_USE * lanes
+    g = R_GAINS + (N_GAINS if st[i_use] == N_GAINS else 0)  # any value: a slot
+    if _slot_matches_at(st, o, lanes, g, coef, step):
         return g
     g = 2 * R_GAINS + N_GAINS - g  # the other slot
-    row[R_GAINS_IN_USE] = g - R_GAINS
-    if not _gains_match(row, g, coef, step):
-        row[g + G_DT] = step
-        row[g + G_TAU_ACC] = coef[C_TAU_ACC]
-        row[g + G_TAU_MAG] = coef[C_TAU_MAG]
-        row[g + G_REST_TAU] = coef[C_REST_TAU]
-        row[g + G_REF_TAU] = coef[C_MAG_REF_TAU]
-        row[g + G_K_REST] = _lowpass_gain(step, coef[C_REST_TAU])
-        row[g + G_K_REF] = _lowpass_gain(step, coef[C_MAG_REF_TAU])
-        row[g + G_K_MAG] = _lowpass_gain(step, coef[C_TAU_MAG])
+    st[i_use] = g - R_GAINS
+    if not _slot_matches_at(st, o, lanes, g, coef, step):
+        i = o + g * lanes
+        st[i + G_DT * lanes] = step
+        st[i + G_TAU_ACC * lanes] = coef[C_TAU_ACC]
+        st[i + G_TAU_MAG * lanes] = coef[C_TAU_MAG]
+        st[i + G_REST_TAU * lanes] = coef[C_REST_TAU]
+        st[i + G_REF_TAU * lanes] = coef[C_MAG_REF_TAU]
+        st[i + G_K_REST * lanes] = _lowpass_gain(step, coef[C_REST_TAU])
+        st[i + G_K_REF * lanes] = _lowpass_gain(step, coef[C_MAG_REF_TAU])
+        st[i + G_K_MAG * lanes] = _lowpass_gain(step, coef[C_TAU_MAG])
         b0, a1, a2 = butterworth_coefficients(step, coef[C_TAU_ACC])
-        row[g + G_BW], row[g + G_BW + 1], row[g + G_BW + 2] = b0, a1, a2
+        st[i + G_BW * lanes], st[i + (G_BW + 1) * lanes], st[i + (G_BW + 2) * lanes] = b0, a1, a2
     return g
+
+
+@njit(cache=True, inline="always")
+def gains_ready_at(st, o, lanes, coef, step):
+    """Whether one of the two slots has the gains for ``step`` (then :func:`gains_at`
+    computes nothing)."""
+    return _slot_matches_at(st, o, lanes, R_GAINS, coef, step) or _slot_matches_at(
+        st, o, lanes, R_GAINS + N_GAINS, coef, step
+    )
+
+
+@njit(cache=True, inline="always")
+def gains_values_at(st, o, lanes, g):
+    """(k_rest, k_ref, k_mag, b0, a1, a2) of the slot at row offset ``g``."""
+    i = o + g * lanes
+    return (st[i + G_K_REST * lanes], st[i + G_K_REF * lanes], st[i + G_K_MAG * lanes],
+            st[i + G_BW * lanes], st[i + (G_BW + 1) * lanes], st[i + (G_BW + 2) * lanes])
+
+
+@njit(cache=True, inline="always")
+def gains_steady_at(st, o, lanes, coef, step):
+    """:func:`gains_at` and the gains it points to, when :func:`gains_ready_at` holds:
+    the same slot, in-use mark and values, chosen by selects between the two slots'
+    constant offsets (no row-dependent offset, no branch, no ``exp``), so a loop over lanes
+    vectorises."""
+    i_use = o + R_GAINS_IN_USE * lanes
+    # (& on the comparisons, not and: every load taken, no branch)
+    i0, i1 = o + R_GAINS * lanes, o + (R_GAINS + N_GAINS) * lanes
+    match0 = ((st[i0 + G_DT * lanes] == step) & (st[i0 + G_TAU_ACC * lanes] == coef[C_TAU_ACC])
+              & (st[i0 + G_TAU_MAG * lanes] == coef[C_TAU_MAG])
+              & (st[i0 + G_REST_TAU * lanes] == coef[C_REST_TAU])
+              & (st[i0 + G_REF_TAU * lanes] == coef[C_MAG_REF_TAU]))
+    match1 = ((st[i1 + G_DT * lanes] == step) & (st[i1 + G_TAU_ACC * lanes] == coef[C_TAU_ACC])
+              & (st[i1 + G_TAU_MAG * lanes] == coef[C_TAU_MAG])
+              & (st[i1 + G_REST_TAU * lanes] == coef[C_REST_TAU])
+              & (st[i1 + G_REF_TAU * lanes] == coef[C_MAG_REF_TAU]))
+    second = st[i_use] == N_GAINS
+    # kept when it matches, else the other one (which does)
+    second = second == (match1 if second else match0)
+    st[i_use] = N_GAINS if second else 0
+    # both slots loaded, then values selected (a select between two loads becomes a load
+    # from a selected address, which the vectoriser cannot bound)
+    r0, f0, m0, b00, a10, a20 = gains_values_at(st, o, lanes, R_GAINS)
+    r1, f1, m1, b01, a11, a21 = gains_values_at(st, o, lanes, R_GAINS + N_GAINS)
+    return (r1 if second else r0, f1 if second else f0, m1 if second else m0,
+            b01 if second else b00, a11 if second else a10, a21 if second else a20)

@@ -1,0 +1,338 @@
+# ruff: noqa: F405  (names from robust_layout's star import)
+"""One sample of margtrack's robust filter (``kernels/robust.py``) on a strided row.
+
+The row's slot j is ``st[o + j * lanes]``: ``(row, 0, 1)`` for one sensor's row, a lane of
+interleaved rows in ``kernels/contract_lanes.py``. The same code serves both, so a sensor
+gets the same arithmetic in either (bit for bit).
+
+``steady=True`` (a constant) is the lockstep pass: the caller has checked
+(``robust._rare_at``) that this sample takes none of the rare branches (no interval, the
+first accelerometer samples since a start, an all-zero accelerometer, gains not cached
+for this interval, no field reference yet), so the step leaves them out of its code, and
+takes its ``atan2`` calls unconditionally (a call inside a branch stops the vectoriser);
+the other branches become selects. Everything is computed in ENU.
+"""
+
+from __future__ import annotations
+
+import math
+
+from margtrack.kernels._quat import exp_half, mul, normalized
+from margtrack.kernels.jit import njit
+from margtrack.kernels.robust_gains import (
+    _bw_hold,
+    _bw_step,
+    gains_at,
+    gains_steady_at,
+    gains_values_at,
+)
+from margtrack.kernels.robust_layout import *  # noqa: F403 (the layout)
+
+H = math.sqrt(0.5)  # ENU <-> NED: q_ned = (0, h, h, 0) ⊗ q_enu, and back the same way
+
+
+@njit(cache=True, inline="always")
+def rotate(w, x, y, z, vx, vy, vz):
+    """q ⊗ v ⊗ q* for unit q."""
+    tx = 2.0 * (y * vz - z * vy)
+    ty = 2.0 * (z * vx - x * vz)
+    tz = 2.0 * (x * vy - y * vx)
+    return (
+        vx + w * tx + y * tz - z * ty,
+        vy + w * ty + z * tx - x * tz,
+        vz + w * tz + x * ty - y * tx,
+    )
+
+
+@njit(cache=True, inline="always")
+def _wrap(angle):
+    """An angle in (-3 pi, 3 pi) wrapped to [-pi, pi] (the differences and sums of two
+    wrapped angles here); the same as ``atan2(sin, cos)`` to rounding, at a fraction of
+    its cost."""
+    if angle > math.pi:
+        return angle - 2.0 * math.pi
+    if angle < -math.pi:
+        return angle + 2.0 * math.pi
+    return angle
+
+
+@njit(cache=True, inline="always")
+def outputs_at(st, o, lanes, ned, q6w, q6x, q6y, q6z, xa, xo, outs):
+    """Extra output k to ``xa[xo + k * outs]``: the 6-D quaternion (ENU in; to NED when
+    ``ned``), the bias and its deviation."""
+    if ned:
+        q6w, q6x, q6y, q6z = mul(0.0, H, H, 0.0, q6w, q6x, q6y, q6z)
+    xa[xo + X_QUAT6 * outs], xa[xo + (X_QUAT6 + 1) * outs] = q6w, q6x
+    xa[xo + (X_QUAT6 + 2) * outs], xa[xo + (X_QUAT6 + 3) * outs] = q6y, q6z
+    i_b, i_sd = o + R_BIAS * lanes, o + R_BIAS_SD * lanes
+    xa[xo + X_BIAS * outs] = st[i_b]
+    xa[xo + (X_BIAS + 1) * outs] = st[i_b + lanes]
+    xa[xo + (X_BIAS + 2) * outs] = st[i_b + 2 * lanes]
+    xa[xo + X_BIAS_SD * outs] = st[i_sd]
+    xa[xo + (X_BIAS_SD + 1) * outs] = st[i_sd + lanes]
+    xa[xo + (X_BIAS_SD + 2) * outs] = st[i_sd + 2 * lanes]
+
+
+@njit(cache=True, inline="always")
+def _bias_update(st, o, lanes, k, p, gain, u):
+    """Bias axis k after a Kalman update with this gain on the measurement residual u."""
+    st[o + (R_BIAS + k) * lanes] += gain * u
+    st[o + (R_BIAS_VAR + k) * lanes] = p
+
+
+@njit(cache=True, inline="always")
+def _rest(st, o, lanes, coef, k_rest, step, g0, g1, g2, a0, a1, a2, acc_ok):
+    """Rest detection (small deviation from slow means, small rate) and, at rest, the
+    bias update from the gyro's slow mean; returns whether at rest."""
+    bias_max = coef[C_BIAS_MAX]
+    i_g, i_a = o + R_GYR_REST * lanes, o + R_ACC_REST * lanes
+    gr0 = st[i_g] + k_rest * (g0 - st[i_g])
+    gr1 = st[i_g + lanes] + k_rest * (g1 - st[i_g + lanes])
+    gr2 = st[i_g + 2 * lanes] + k_rest * (g2 - st[i_g + 2 * lanes])
+    st[i_g], st[i_g + lanes], st[i_g + 2 * lanes] = gr0, gr1, gr2
+    dev_g = (g0 - gr0) ** 2 + (g1 - gr1) ** 2 + (g2 - gr2) ** 2
+    # (& on the comparisons, not and, here and below: no branches in the lockstep pass)
+    still = (
+        (dev_g < coef[C_REST_GYR] ** 2)
+        & (abs(gr0) < bias_max)
+        & (abs(gr1) < bias_max)
+        & (abs(gr2) < bias_max)
+    )
+    i_still = o + R_STILL * lanes
+    if acc_ok:
+        ar0 = st[i_a] + k_rest * (a0 - st[i_a])
+        ar1 = st[i_a + lanes] + k_rest * (a1 - st[i_a + lanes])
+        ar2 = st[i_a + 2 * lanes] + k_rest * (a2 - st[i_a + 2 * lanes])
+        st[i_a], st[i_a + lanes], st[i_a + 2 * lanes] = ar0, ar1, ar2
+        dev_a = (a0 - ar0) ** 2 + (a1 - ar1) ** 2 + (a2 - ar2) ** 2
+        still = still & (dev_a < coef[C_REST_ACC] ** 2)
+        st[i_still] = st[i_still] + step if still else 0.0
+    elif not still:
+        st[i_still] = 0.0  # without an accelerometer the gyro alone can end rest
+    rest = still & (st[i_still] >= coef[C_REST_MIN_T])
+    if rest:
+        # at rest the gyro reads its bias: a Kalman update per axis (Ang's bias states, 003)
+        # (written out: a loop inside a branch stops the vectoriser)
+        r = coef[C_BIAS_REST_NOISE] ** 2
+        i_b, i_v = o + R_BIAS * lanes, o + R_BIAS_VAR * lanes
+        p0, p1, p2 = st[i_v], st[i_v + lanes], st[i_v + 2 * lanes]
+        k0, k1, k2 = p0 / (p0 + r), p1 / (p1 + r), p2 / (p2 + r)
+        _bias_update(st, o, lanes, 0, (1.0 - k0) * p0, k0, gr0 - st[i_b])
+        _bias_update(st, o, lanes, 1, (1.0 - k1) * p1, k1, gr1 - st[i_b + lanes])
+        _bias_update(st, o, lanes, 2, (1.0 - k2) * p2, k2, gr2 - st[i_b + 2 * lanes])
+    return rest
+
+
+@njit(cache=True, inline="always")
+def _motion_bias(st, o, lanes, k, r, u, v):
+    """Bias axis k from the horizontal correction rate u, weighted by how much of the
+    axis lies in the horizontal plane (1 - v²)."""
+    horizontal = 1.0 - v * v
+    if horizontal > 1e-3:
+        p = st[o + (R_BIAS_VAR + k) * lanes]
+        gain = p * horizontal / (p * horizontal + r)
+        _bias_update(st, o, lanes, k, (1.0 - gain * horizontal) * p, -gain, u)
+
+
+@njit(cache=True, inline="always")
+def _incline(st, o, lanes, coef, b0, a1, a2, step, x0, x1, x2, rest, steady):
+    """The low-passed accelerometer in I must point up: q_acc corrected by the shortest
+    arc (004); in motion the applied correction rate is a bias measurement. (b0, a1, a2):
+    the Butterworth coefficients of the interval."""
+    i_g, i_c = o + R_Q_GYR * lanes, o + R_Q_ACC * lanes
+    gw, gx, gy, gz = st[i_g], st[i_g + lanes], st[i_g + 2 * lanes], st[i_g + 3 * lanes]
+    cw, cx, cy, cz = st[i_c], st[i_c + lanes], st[i_c + 2 * lanes], st[i_c + 3 * lanes]
+    bw, lp = o + R_ACC_LP_BW * lanes, o + R_ACC_LP * lanes
+    i_stage = o + R_LP_STAGE * lanes
+    if not steady and st[i_stage] == LP_FIRST:
+        # start the low-pass steady at the first sample
+        for k in range(3):
+            st[bw + 2 * k * lanes], st[bw + (2 * k + 1) * lanes] = _bw_hold(
+                b0, a1, a2, st[lp + k * lanes]
+            )
+        st[i_stage] = LP_FILTER
+    ex, ey, ez = rotate(gw, gx, gy, gz, x0, x1, x2)
+    l0, st[bw], st[bw + lanes] = _bw_step(b0, a1, a2, st[bw], st[bw + lanes], ex)
+    l1, st[bw + 2 * lanes], st[bw + 3 * lanes] = _bw_step(
+        b0, a1, a2, st[bw + 2 * lanes], st[bw + 3 * lanes], ey
+    )
+    l2, st[bw + 4 * lanes], st[bw + 5 * lanes] = _bw_step(
+        b0, a1, a2, st[bw + 4 * lanes], st[bw + 5 * lanes], ez
+    )
+    st[lp], st[lp + lanes], st[lp + 2 * lanes] = l0, l1, l2
+    lx, ly, lz = rotate(cw, cx, cy, cz, l0, l1, l2)
+    norm = math.sqrt(lx * lx + ly * ly + lz * lz)
+    if norm > 0.0:
+        lx, ly, lz = lx / norm, ly / norm, lz / norm
+        # shortest arc taking (lx, ly, lz) to up = [0, 0, 1] (004)
+        if lz > -0.999999:
+            # (abs: positive here; it lets LLVM take the sqrt instruction for libm's call,
+            # which sets errno on a negative argument and so cannot be vectorised)
+            sq = math.sqrt(abs(2.0 * (1.0 + lz)))
+            rw, rx, ry = 0.5 * sq, ly / sq, -lx / sq
+        else:
+            rw, rx, ry = 0.0, 1.0, 0.0
+        cw, cx, cy, cz = mul(rw, rx, ry, 0.0, cw, cx, cy, cz)
+        cw, cx, cy, cz = normalized(cw, cx, cy, cz)
+        st[i_c], st[i_c + lanes], st[i_c + 2 * lanes], st[i_c + 3 * lanes] = cw, cx, cy, cz
+        if not rest:
+            # the applied correction rate (level frame), seen in the body, is minus the
+            # horizontal bias error: a bias measurement in motion
+            q6w, q6x, q6y, q6z = mul(cw, cx, cy, cz, gw, gx, gy, gz)
+            ux, uy, uz = rotate(q6w, -q6x, -q6y, -q6z, 2.0 * rx / step, 2.0 * ry / step, 0.0)
+            # only the horizontal components are observed
+            vx, vy, vz = rotate(q6w, -q6x, -q6y, -q6z, 0.0, 0.0, 1.0)
+            r = coef[C_BIAS_MOTION_NOISE] ** 2
+            _motion_bias(st, o, lanes, 0, r, ux, vx)
+            _motion_bias(st, o, lanes, 1, r, uy, vy)
+            _motion_bias(st, o, lanes, 2, r, uz, vz)
+
+
+@njit(cache=True, inline="always")
+def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, dip_any, field_heading_any,
+             steady):
+    """Heading from the horizontal field (004's vector rejection), unless the field's norm
+    or dip disagrees with the tracked reference; returns whether it did (disturbed).
+    (mx, my, mz): the field in the level frame; ``k_ref``, ``k_mag``: the interval's gains
+    (read only when step > 0); in the lockstep pass (``steady``) the dip and the field's
+    heading come computed (``step_at``), else they are computed here when needed."""
+    m_norm = math.sqrt(mx * mx + my * my + mz * mz)
+    horizontal = math.sqrt(mx * mx + my * my)
+    # an all-zero sample (no measurement) has m_norm == 0: skipped
+    usable = (m_norm > 0.0) & (horizontal > 1e-6 * m_norm)
+    disturbed = False
+    i_nref, i_dref = o + R_MAG_NORM_REF * lanes, o + R_MAG_DIP_REF * lanes
+    i_cn, i_cd, i_cs = o + R_CAND_NORM * lanes, o + R_CAND_DIP * lanes, o + R_CAND_S * lanes
+    i_n, i_since = o + R_HEADING_N * lanes, o + R_SINCE_START * lanes
+    if usable:
+        dip = dip_any if steady else math.atan2(-mz, horizontal)
+        if not steady:  # (the lockstep pass has both references)
+            if st[i_nref] <= 0.0:
+                st[i_nref] = m_norm
+                st[i_cn] = m_norm
+            if math.isnan(st[i_dref]):
+                st[i_dref] = dip
+                st[i_cd] = dip
+        ref_n, ref_d = st[i_nref], st[i_dref]
+        disturbed = (abs(m_norm - ref_n) > coef[C_MAG_NORM_TOL] * ref_n) | (
+            abs(dip - ref_d) > coef[C_MAG_DIP_TOL]
+        )
+        if step > 0.0:
+            if not disturbed:
+                st[i_nref] = ref_n + k_ref * (m_norm - ref_n)
+                st[i_dref] = ref_d + k_ref * (dip - ref_d)
+                st[i_cn] = m_norm
+                st[i_cd] = dip
+                st[i_cs] = 0.0
+                # a fixed time constant: an adaptive (Kalman) gain that grows after fast
+                # turns or rejected disturbances was measured worse on BROAD, re-acquiring
+                # still-distorted fields too quickly. Start-up: the mean of the
+                # measurements while 1/n is larger
+                k = k_mag
+                if st[i_since] < coef[C_CONVERGE]:
+                    st[i_n] += 1.0
+                    k = max(k, 1.0 / st[i_n])
+                # angle of the horizontal field from north (+y) towards east (+x)
+                field_heading = field_heading_any if steady else math.atan2(mx, my)
+                i_head = o + R_HEADING * lanes
+                head = st[i_head]
+                st[i_head] = _wrap(head + k * _wrap(field_heading - head))
+            else:
+                # a new, steady field: track a candidate and adopt it once it has stayed
+                # consistent for long enough (a new environment)
+                cand_n, cand_d = st[i_cn], st[i_cd]
+                consistent = (abs(m_norm - cand_n) < coef[C_MAG_NORM_TOL] * cand_n) & (
+                    abs(dip - cand_d) < coef[C_MAG_DIP_TOL]
+                )
+                if consistent:
+                    st[i_cs] += step
+                    st[i_cn] = cand_n + k_ref * (m_norm - cand_n)
+                    st[i_cd] = cand_d + k_ref * (dip - cand_d)
+                else:
+                    st[i_cs] = 0.0
+                    st[i_cn] = m_norm
+                    st[i_cd] = dip
+                if st[i_cs] > coef[C_MAG_NEW_REF_T]:
+                    st[i_nref] = st[i_cn]
+                    st[i_dref] = st[i_cd]
+                    st[i_cs] = 0.0
+    if not steady and st[i_since] == 0.0 and st[i_n] == 1.0 and (disturbed or not usable):
+        # a start without an undisturbed field: its heading is no measurement, the first
+        # one replaces it (the lockstep pass has had an interval since its start)
+        st[i_n] = 0.0
+    return disturbed
+
+
+@njit(cache=True, inline="always")
+def step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, qa, qo, xa, xo,
+            outs, steady):
+    """One screened sample (an all-zero acc or mag: no measurement; dt 0: nothing to
+    integrate): output k of the 9-D (6-D without a field) orientation to ``qa[qo + k *
+    outs]``, of the extra outputs to ``xa[xo + k * outs]``; returns the REST and
+    MAG_DISTURBED bits."""
+    # (the lockstep pass has an accelerometer sample: robust._rare_at)
+    acc_ok = steady or (a0 != 0.0) | (a1 != 0.0) | (a2 != 0.0)
+    i_g = o + R_Q_GYR * lanes
+    i_lp, i_stage = o + R_ACC_LP * lanes, o + R_LP_STAGE * lanes
+    if not steady and acc_ok and st[i_stage] == LP_EMPTY:
+        # the first usable sample since the start: it starts both low-passes (q_gyr is
+        # the identity at a start, so I is the body frame then)
+        st[i_lp], st[i_lp + lanes], st[i_lp + 2 * lanes] = rotate(
+            st[i_g], st[i_g + lanes], st[i_g + 2 * lanes], st[i_g + 3 * lanes], a0, a1, a2
+        )
+        i_a = o + R_ACC_REST * lanes
+        st[i_a], st[i_a + lanes], st[i_a + 2 * lanes] = a0, a1, a2
+        st[i_stage] = LP_FIRST
+        acc_ok = False  # used: not filtered a second time below
+    rest = False
+    k_ref = k_mag = 0.0  # (read only when dt > 0)
+    if steady or dt > 0.0:
+        if steady:
+            k_rest, k_ref, k_mag, b0, a1_bw, a2_bw = gains_steady_at(st, o, lanes, coef, dt)
+        else:
+            k_rest, k_ref, k_mag, b0, a1_bw, a2_bw = gains_values_at(
+                st, o, lanes, gains_at(st, o, lanes, coef, dt)
+            )
+        st[o + R_SINCE_START * lanes] += dt
+        # -- strapdown: q_gyr ⊗ exp((ω - b) dt / 2); the bias walks between measurements
+        i_b, i_v = o + R_BIAS * lanes, o + R_BIAS_VAR * lanes
+        dw, dx, dy, dz = exp_half(g0 - st[i_b], g1 - st[i_b + lanes], g2 - st[i_b + 2 * lanes],
+                                  dt)
+        gw, gx, gy, gz = mul(st[i_g], st[i_g + lanes], st[i_g + 2 * lanes], st[i_g + 3 * lanes],
+                             dw, dx, dy, dz)
+        gw, gx, gy, gz = normalized(gw, gx, gy, gz)
+        st[i_g], st[i_g + lanes], st[i_g + 2 * lanes], st[i_g + 3 * lanes] = gw, gx, gy, gz
+        walk = coef[C_BIAS_WALK] ** 2 * dt
+        st[i_v] += walk
+        st[i_v + lanes] += walk
+        st[i_v + 2 * lanes] += walk
+        rest = _rest(st, o, lanes, coef, k_rest, dt, g0, g1, g2, a0, a1, a2, acc_ok)
+        if acc_ok:  # (an all-zero sample is no measurement: nothing reaches the low-pass)
+            _incline(st, o, lanes, coef, b0, a1_bw, a2_bw, dt, a0, a1, a2, rest, steady)
+        bias_max = coef[C_BIAS_MAX]
+        i_sd = o + R_BIAS_SD * lanes
+        for k in range(3):
+            st[i_b + k * lanes] = min(max(st[i_b + k * lanes], -bias_max), bias_max)
+            st[i_sd + k * lanes] = math.sqrt(abs(st[i_v + k * lanes]))  # (abs: as above)
+    i_c = o + R_Q_ACC * lanes
+    q6w, q6x, q6y, q6z = mul(st[i_c], st[i_c + lanes], st[i_c + 2 * lanes], st[i_c + 3 * lanes],
+                             st[i_g], st[i_g + lanes], st[i_g + 2 * lanes], st[i_g + 3 * lanes])
+    disturbed = False
+    mx, my, mz = rotate(q6w, q6x, q6y, q6z, m0, m1, m2)  # the field in the level frame
+    # the lockstep pass takes the angles on every path (a call inside a branch, even one on
+    # has_mag, stops the vectoriser; atan2(0, 0) = 0 when unused)
+    dip_any = math.atan2(-mz, math.sqrt(mx * mx + my * my)) if steady else 0.0
+    field_heading_any = math.atan2(mx, my) if steady else 0.0
+    if has_mag:
+        disturbed = _heading(st, o, lanes, coef, k_ref, k_mag, dt, mx, my, mz, dip_any,
+                             field_heading_any, steady)
+        half = 0.5 * st[o + R_HEADING * lanes]
+        ow, ox, oy, oz = mul(math.cos(half), 0.0, 0.0, math.sin(half), q6w, q6x, q6y, q6z)
+    else:
+        ow, ox, oy, oz = q6w, q6x, q6y, q6z
+    ned = coef[C_NED] > 0.5
+    if ned:
+        ow, ox, oy, oz = mul(0.0, H, H, 0.0, ow, ox, oy, oz)
+    qa[qo], qa[qo + outs], qa[qo + 2 * outs], qa[qo + 3 * outs] = ow, ox, oy, oz
+    outputs_at(st, o, lanes, ned, q6w, q6x, q6y, q6z, xa, xo, outs)
+    return (REST if rest else 0) | (MAG_DISTURBED if disturbed else 0)
