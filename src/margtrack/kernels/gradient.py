@@ -1,3 +1,4 @@
+# ruff: noqa: F405  (names from gradient_layout's star import)
 """Kernel of the gradient-descent filter (004, an extension of Madgwick's filter), on
 ``kernels/contract.py``.
 
@@ -5,8 +6,8 @@ Quaternions are body-to-earth ``[w, x, y, z]`` (004's ``q1..q4``); Madgwick's an
 ``^S_E q`` is numerically the same quaternion, their ``q* ⊗ d ⊗ q`` is our
 ``rotate_inverse(q, d)``.
 
-Row layout after the contract's slots (the constants are row indices, from
-``contract.N_CONTRACT`` on):
+Row layout after the contract's slots (the constants, in ``kernels/gradient_layout.py``,
+are row indices from ``contract.N_CONTRACT`` on):
 
 - ``G_Q`` (4): the orientation in NWU, where the recursion runs (see :func:`_step`);
 - ``G_MAG_REF`` (2): [b_x, b_z], the unit field reference of ``FULL_FIXED`` in north/up
@@ -44,71 +45,10 @@ import math
 from margtrack.kernels import contract, contract_lanes, screen
 from margtrack.kernels._quat import exp_half, mul
 from margtrack.kernels.contract import N_SCOEF
+from margtrack.kernels.gradient_layout import *  # noqa: F403 (the layout, as this module's)
 from margtrack.kernels.gradient_objective import gradient_term, rotate, rotate_inverse
 from margtrack.kernels.gradient_objective import objective_jacobian as objective_jacobian
 from margtrack.kernels.jit import njit, to_fixed_tuple
-
-#: ``ignored`` flag bits: no accelerometer correction (zero vector, the screening's "no
-#: measurement"; the sample is gyro-only, without a magnetometer term either)
-ACC_IGNORED = 1
-#: ... the accelerometer was used but no magnetometer term (zero vector, or its forward
-#: component vanishes)
-MAG_IGNORED = 2
-#: ... a non-zero field that the filter itself did not use: its forward component vanished
-#: (with MAG_IGNORED) or there was no accelerometer to go with it (with ACC_IGNORED); the
-#: screening's zero sentinel is not this (it flags those samples itself)
-MAG_REJECTED = 4
-
-# Below this |∇f| the estimate fits the measurements to rounding (|f| ~ 1e-16); the
-# normalised step ∇f/|∇f| would then point in a direction set by rounding noise (and a
-# reset to the measured orientation followed by the same sample would step at random), so
-# no correction is made. Real data never comes this close (ahrs, which has no such floor,
-# gives the same results on BROAD to 1e-15).
-GRADIENT_MIN = 1e-12
-
-# magnetic objectives (``C_MAG_MODE``)
-FORWARD_ESTIMATED = 0
-FORWARD_MEASURED = 1
-FULL_ADAPTIVE = 2
-FULL_FIXED = 3
-
-# The field's norm is computed directly inside this range and after scaling by its largest
-# component outside it (where the squares would over- or underflow): any field unit works.
-FIELD_SAFE = (1e-150, 1e150)
-
-# Below this |m_f| / |m| the magnetometer is (almost) parallel to the measured gravity and
-# its forward component no longer defines a horizontal direction (sin of about 0.6 deg).
-FORWARD_MIN = 1e-2
-
-
-# -- row slots (after the contract's) ----------------------------------------------------
-G_Q = contract.N_CONTRACT  # 4: orientation, body to NWU
-G_MAG_REF = G_Q + 4  # 2: fixed field reference [b_x, b_z] (b_x = 0: none yet)
-G_ACC_HELD = G_MAG_REF + 2  # 3: held accelerometer sample, m/s²
-G_MAG_HELD = G_ACC_HELD + 3  # 3: held magnetometer sample, field unit
-N_ROW = G_MAG_HELD + 3
-
-# -- coefficients ---------------------------------------------------------------------------
-C_BETA = 0  # rad/s
-C_MAG_MODE = 1  # FORWARD_ESTIMATED ... FULL_FIXED
-C_EXACT = 2  # 1: q ⊗ exp(ω dt/2); 0: q + q̇ dt
-C_GRAVITY = 3  # m/s²
-C_USE_MAG = 4  # 0: a given field is dropped by the entry points
-C_TO_FRAME = 5  # 4: c, q_frame = c ⊗ q_nwu
-C_UP = 9  # 3: up in the output frame
-N_COEF = 12
-
-# -- extra outputs ----------------------------------------------------------------------------
-X_EULER = 0  # 3: [yaw, pitch, roll], rad
-X_GRAVITY = 3  # 3: gravity component, body, m/s²
-X_LIN_ACC = 6  # 3: linear acceleration, output frame, m/s²
-X_IGNORED = 9  # 1: ``ignored`` bits
-N_OUT = 10
-
-# -- what ``run`` keeps per sample instead (``x_run``; :func:`expand` makes the outputs) ----
-L_ACC = 0  # 3: the screened accelerometer sample the step used, m/s² (zeros: none)
-L_IGNORED = 3  # 1: ``ignored`` bits
-N_LEAN = 4
 
 
 @njit(cache=True, inline="always")
