@@ -64,3 +64,37 @@ def test_screen_one_equals_screen_one_k_with_the_shared_gain_on_bad_input():
     assert disturbed > 10  # the disturbed branch (which uses the gain) was exercised
     # the tracked reference moved by the gain: not its first value any more
     assert sc_a[0, screen.S_REF + screen.R_NORM] != pytest.approx(np.linalg.norm(mag[0]), rel=1e-9)
+
+
+@pytest.mark.kernel
+def test_screen_samples_equals_screen_one_per_sensor_and_sample():
+    # two sensors, one faulty: the series kernel (gain once per sample, inlined) gives what
+    # screen_one gives sample by sample, states included
+    rng = np.random.default_rng(5)
+    n = 300
+    dts = np.full(n, 0.01)
+    dts[[0, 70]] = 0.0
+    tflags = np.zeros(n, dtype=np.uint16)
+    tflags[70] = screen.GAP
+    gyr = rng.normal(0.0, 1.0, (2, n, 3))
+    acc = rng.normal(0.0, 0.5, (2, n, 3)) + [0.0, 0.0, 9.81]
+    mag = rng.normal(0.0, 1.0, (2, n, 3)) + [20.0, 0.0, -40.0]
+    gyr[1, 10] = np.nan
+    acc[1, 20] = 1e6
+    mag[1, 100:150] *= 1.6
+    coef = _coef()
+    sc = np.zeros((2, screen.N_SCREEN))
+    screen.fresh(sc)
+    outs = [np.empty((2, n, 3)) for _ in range(3)]
+    flags = np.empty((2, n), dtype=np.uint16)
+    screen.screen_samples(coef, dts, tflags, gyr, acc, mag, True, True, sc, *outs, flags)
+    assert np.any(flags[1] & screen.MAG_DISTURBED) and np.any(flags[1] & screen.INVALID)
+    for s in range(2):
+        state = np.zeros((1, screen.N_SCREEN))
+        screen.fresh(state)
+        for i in range(n):
+            f, *values = screen.screen_one(coef, state[0], dts[i], tflags[i], *gyr[s, i],
+                                           *acc[s, i], *mag[s, i], True, True)
+            assert flags[s, i] == f, (s, i)
+            np.testing.assert_array_equal(np.concatenate([o[s, i] for o in outs]), values)
+        np.testing.assert_array_equal(sc[s], state[0])

@@ -277,12 +277,18 @@ def screen_samples(coef, dt, time_flags, gyr, acc, mag, has_mag, has_gyr, sc,
     """:func:`screen_one` over S sensors' N samples; sc (S, N_SCREEN) in/out.
 
     gyr, acc, mag (S, N, 3) (mag read only when ``has_mag``, gyr when ``has_gyr``);
-    outputs (S, N, 3) and flags_out (S, N) uint16.
+    outputs (S, N, 3) and flags_out (S, N) uint16. The sensors share the clock, so the
+    reference gain of each interval (an ``exp``) is computed once for all of them (the same
+    value: :func:`screen_one_k`).
     """
+    k_ref = np.empty(dt.shape[0])
+    for i in range(dt.shape[0]):
+        k_ref[i] = ref_gain(dt[i])
     for s in range(acc.shape[0]):
+        sc_s = sc[s]
         for i in range(acc.shape[1]):
-            f, g0, g1, g2, a0, a1, a2, m0, m1, m2 = screen_one(
-                coef, sc[s], dt[i], time_flags[i],
+            f, g0, g1, g2, a0, a1, a2, m0, m1, m2 = screen_one_k(
+                coef, sc_s, dt[i], k_ref[i], time_flags[i],
                 gyr[s, i, 0], gyr[s, i, 1], gyr[s, i, 2],
                 acc[s, i, 0], acc[s, i, 1], acc[s, i, 2],
                 mag[s, i, 0], mag[s, i, 1], mag[s, i, 2],
