@@ -68,12 +68,14 @@ def _slot_matches_at(st, o, lanes, g, coef, step):
     """Whether the gains of the slot at row offset ``g`` (the row's slot j at
     ``st[o + j * lanes]``) were computed for this interval and these time constants."""
     i = o + g * lanes
+    # (& on the comparisons, not and: every load taken, no branch, so a loop over lanes
+    # vectorises it)
     return (
-        st[i + G_DT * lanes] == step
-        and st[i + G_TAU_ACC * lanes] == coef[C_TAU_ACC]
-        and st[i + G_TAU_MAG * lanes] == coef[C_TAU_MAG]
-        and st[i + G_REST_TAU * lanes] == coef[C_REST_TAU]
-        and st[i + G_REF_TAU * lanes] == coef[C_MAG_REF_TAU]
+        (st[i + G_DT * lanes] == step)
+        & (st[i + G_TAU_ACC * lanes] == coef[C_TAU_ACC])
+        & (st[i + G_TAU_MAG * lanes] == coef[C_TAU_MAG])
+        & (st[i + G_REST_TAU * lanes] == coef[C_REST_TAU])
+        & (st[i + G_REF_TAU * lanes] == coef[C_MAG_REF_TAU])
     )
 
 
@@ -132,16 +134,8 @@ def gains_steady_at(st, o, lanes, coef, step):
     constant offsets (no row-dependent offset, no branch, no ``exp``), so a loop over lanes
     vectorises."""
     i_use = o + R_GAINS_IN_USE * lanes
-    # (& on the comparisons, not and: every load taken, no branch)
-    i0, i1 = o + R_GAINS * lanes, o + (R_GAINS + N_GAINS) * lanes
-    match0 = ((st[i0 + G_DT * lanes] == step) & (st[i0 + G_TAU_ACC * lanes] == coef[C_TAU_ACC])
-              & (st[i0 + G_TAU_MAG * lanes] == coef[C_TAU_MAG])
-              & (st[i0 + G_REST_TAU * lanes] == coef[C_REST_TAU])
-              & (st[i0 + G_REF_TAU * lanes] == coef[C_MAG_REF_TAU]))
-    match1 = ((st[i1 + G_DT * lanes] == step) & (st[i1 + G_TAU_ACC * lanes] == coef[C_TAU_ACC])
-              & (st[i1 + G_TAU_MAG * lanes] == coef[C_TAU_MAG])
-              & (st[i1 + G_REST_TAU * lanes] == coef[C_REST_TAU])
-              & (st[i1 + G_REF_TAU * lanes] == coef[C_MAG_REF_TAU]))
+    match0 = _slot_matches_at(st, o, lanes, R_GAINS, coef, step)
+    match1 = _slot_matches_at(st, o, lanes, R_GAINS + N_GAINS, coef, step)
     second = st[i_use] == N_GAINS
     # kept when it matches, else the other one (which does)
     second = second == (match1 if second else match0)
