@@ -240,6 +240,48 @@ def test_fix_is_called_with_signal_and_suspected_unit() -> None:
     assert calls == [("gyr", "deg/s"), ("acc", "g")]
 
 
+def test_several_sensors_are_judged_each_and_the_message_names_the_sensor() -> None:
+    """(S, N, 3): one call decides for each sensor what a call per sensor decides, and names
+    the first sensor refused."""
+    rng = np.random.default_rng(3)
+    n = 900
+    acc = np.tile([0.0, 0.0, 9.81], (4, n, 1)) + rng.normal(0.0, 0.3, (4, n, 3))
+    gyr = rng.normal(0.0, 1.0, (4, n, 3))
+    gyr[0, 100] = 300.0  # one spike on sensor 0: a glitch, not a unit
+    gyr[2, 40:] *= 180.0 / np.pi  # sensor 2 in deg/s, its turn of 57 deg/s on from sample 40
+    gyr[2, 40:45, 1] = 80.0
+    check_unit_magnitudes(gyr[[0, 1, 3]], acc[[0, 1, 3]])
+    with pytest.raises(UnitError, match=r"^sensor 2: gyr reaches .* at sample \d+ and exceeds 40 "
+                       r"rad/s on \d+ of 900 samples \(first at sample 4[0-4]\)"):
+        check_unit_magnitudes(gyr, acc)
+    acc[1] /= 9.81  # sensor 1 in g
+    acc[3, ::2] = np.nan  # half of sensor 3 missing: no evidence either way
+    with pytest.raises(UnitError, match=r"^sensor 1: acc has a median norm of 1\.0\d\d, about 1 g"):
+        check_unit_magnitudes(np.zeros((4, n, 3)), acc)
+    for s in range(4):  # the same decisions, one sensor at a time
+        refused = s in (1, 2)
+        try:
+            check_unit_magnitudes(gyr[s] if s != 1 else np.zeros((n, 3)), acc[s])
+        except UnitError as exc:
+            assert refused and not str(exc).startswith("sensor"), exc
+        else:
+            assert not refused
+
+
+def test_run_on_several_sensors_names_the_sensor_in_deg_s() -> None:
+    from margtrack import methods
+
+    n = 600
+    t = np.arange(n) / 100.0
+    acc = np.tile([0.0, 0.0, 9.81], (3, n, 1))
+    gyr = np.zeros((3, n, 3))
+    gyr[1, 50:, 2] = 90.0  # sensor 1: a 90 deg/s turn given as rad/s
+    with pytest.raises(UnitError, match=r"^sensor 1: gyr .*pass gyr_unit='deg/s' to run\(\)"):
+        methods.create("gyro").run(gyr=gyr, acc=acc, t=t)
+    est = methods.create("gyro").run(gyr=gyr, acc=acc, t=t, gyr_unit="deg/s")
+    assert est.quat.shape == (3, n, 4)
+
+
 def test_fix_sentences() -> None:
     assert unit_fix_api("gyr", "deg/s") == (
         "pass gyr_unit='deg/s' to run() or convert with Recording.with_units(gyr='deg/s')"

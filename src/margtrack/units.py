@@ -141,41 +141,71 @@ def check_unit_magnitudes(
 
     Parameters
     ----------
-    gyr_rad_s : (N, 3) angular rate that should be rad/s (may be empty). Refused if a
-        share of samples (0.1 %, at least 3) exceeds 40 rad/s, more than any MEMS gyroscope
-        measures (±2000 deg/s is 34.9); a single spike is a glitch, not a unit.
-    acc_m_s2 : (N, 3) specific force that should be m/s² (may be empty). Refused if its
-        median norm lies between 0.5 and 2 (about 1 g rather than 9.81 m/s²).
+    gyr_rad_s : (N, 3) angular rate that should be rad/s (may be empty), or (S, N, 3) for S
+        sensors, each judged on its own. Refused if a share of samples (0.1 %, at least 3)
+        exceeds 40 rad/s, more than any MEMS gyroscope measures (±2000 deg/s is 34.9); a
+        single spike is a glitch, not a unit.
+    acc_m_s2 : (N, 3) or (S, N, 3) specific force that should be m/s² (may be empty).
+        Refused if its median norm lies between 0.5 and 2 (about 1 g rather than 9.81 m/s²).
     fix : ``fix(signal, suspected)`` returns the sentence telling the caller how to declare
         the unit on its own path (an option, a keyword); default :func:`unit_fix_api`.
 
-    The message names the offending sample (gyr) or the median norm (acc), the suspected
-    unit and the fix.
+    The message names the offending sample (gyr) or the median norm (acc), the sensor when
+    there are several, the suspected unit and the fix. Non-finite samples count as no
+    evidence. The sensors are checked together (a few numpy passes, no loop over them).
     """
     fix = unit_fix_api if fix is None else fix
     gyr = np.asarray(gyr_rad_s, dtype=np.float64)
     acc = np.asarray(acc_m_s2, dtype=np.float64)
     if gyr.size:
-        # samples beyond any MEMS range; a spike or two is a glitch (the estimators flag and
-        # skip it), a share of a recording is a unit
-        over = np.flatnonzero(np.any(np.abs(gyr) > _GYR_RAD_S_IMPLAUSIBLE, axis=-1))
-        if over.size >= _gyr_hits_needed(gyr.shape[0]):
-            peak = float(np.abs(gyr).max())
-            i = int(np.argwhere(np.abs(gyr) == peak)[0][0])
-            raise UnitError(
-                f"gyr reaches {peak:.1f} rad/s at sample {i} and exceeds "
-                f"{_GYR_RAD_S_IMPLAUSIBLE:g} rad/s on {over.size} of {gyr.shape[0]} samples "
-                f"(first at sample {int(over[0])}), more than any MEMS gyroscope measures; "
-                f"the data is probably in deg/s: {fix('gyr', 'deg/s')}",
-                signal="gyr", suspected="deg/s",
-            )
+        _check_gyr(gyr.reshape(-1, *gyr.shape[-2:]), gyr.ndim > 2, fix)
     if acc.size:
-        # the median of an evenly strided subsample: as telling, and cheap on long series
-        stride = max(1, acc.shape[0] // 20_000)
-        median_norm = float(np.median(np.linalg.norm(acc[::stride], axis=1)))
-        if _ACC_G_LIKELY[0] < median_norm < _ACC_G_LIKELY[1]:
-            raise UnitError(
-                f"acc has a median norm of {median_norm:.3f}, about 1 g rather than 9.81 m/s²; "
-                f"the data is probably in g: {fix('acc', 'g')}",
-                signal="acc", suspected="g",
-            )
+        _check_acc(acc.reshape(-1, *acc.shape[-2:]), acc.ndim > 2, fix)
+
+
+def _sensor(s: int, several: bool) -> str:
+    """The message's prefix naming sensor s when a call checks several."""
+    return f"sensor {s}: " if several else ""
+
+
+def _check_gyr(gyr: Array, several: bool, fix: Callable[[str, str], str]) -> None:
+    """:func:`check_unit_magnitudes` for the rates (S, N, 3)."""
+    # first a bound without temporaries (fmax/fmin skip nan): most data never nears 40 rad/s
+    if max(np.fmax.reduce(gyr, axis=None), -np.fmin.reduce(gyr, axis=None)) <= (
+        _GYR_RAD_S_IMPLAUSIBLE
+    ):
+        return
+    # samples beyond any MEMS range; a spike or two is a glitch (the estimators flag and skip
+    # it), a share of a recording is a unit
+    over = np.any(np.abs(gyr) > _GYR_RAD_S_IMPLAUSIBLE, axis=-1)  # (S, N)
+    bad = np.flatnonzero(over.sum(axis=1) >= _gyr_hits_needed(gyr.shape[1]))
+    if bad.size:
+        s = int(bad[0])
+        magnitude = np.abs(gyr[s])
+        peak = float(magnitude.max())
+        i = int(np.argwhere(magnitude == peak)[0][0])
+        hits = np.flatnonzero(over[s])
+        raise UnitError(
+            f"{_sensor(s, several)}gyr reaches {peak:.1f} rad/s at sample {i} and exceeds "
+            f"{_GYR_RAD_S_IMPLAUSIBLE:g} rad/s on {hits.size} of {gyr.shape[1]} samples "
+            f"(first at sample {int(hits[0])}), more than any MEMS gyroscope measures; "
+            f"the data is probably in deg/s: {fix('gyr', 'deg/s')}",
+            signal="gyr", suspected="deg/s",
+        )
+
+
+def _check_acc(acc: Array, several: bool, fix: Callable[[str, str], str]) -> None:
+    """:func:`check_unit_magnitudes` for the specific force (S, N, 3)."""
+    # the median of an evenly strided subsample, as telling and cheap on long series: about
+    # 20,000 samples in all, at least 256 per sensor
+    per_sensor = max(256, 20_000 // acc.shape[0])
+    sub = acc[:, :: max(1, -(-acc.shape[1] // per_sensor))]
+    medians = np.median(np.sqrt(np.einsum("snk,snk->sn", sub, sub)), axis=1)
+    bad = np.flatnonzero((_ACC_G_LIKELY[0] < medians) & (medians < _ACC_G_LIKELY[1]))
+    if bad.size:
+        s = int(bad[0])
+        raise UnitError(
+            f"{_sensor(s, several)}acc has a median norm of {medians[s]:.3f}, about 1 g rather "
+            f"than 9.81 m/s²; the data is probably in g: {fix('acc', 'g')}",
+            signal="acc", suspected="g",
+        )

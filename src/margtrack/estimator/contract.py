@@ -503,8 +503,7 @@ class Estimator(ABC, Generic[P, S]):
         if t.shape != (n,):
             raise ValueError(f"t must have shape ({n},), got {t.shape}")
         if check_units:
-            for s in range(acc_a.shape[0]):
-                check_series_units(None if gyr_a is None else gyr_a[s], acc_a[s], path="arrays")
+            check_series_units(gyr_a, acc_a, path="arrays")
         return _Inputs(t=t, gyr=gyr_a, acc=acc_a, mag=mag_a)
 
     def _fresh_state(self, n_sensors: int) -> S:

@@ -42,7 +42,8 @@ def scale_to_si(signal: str, unit: str) -> float:
 
 
 def check_series_units(gyr: Array | None, acc: Array, path: str) -> None:
-    """Raise ``units.UnitError`` if gyr (N, 3) looks like deg/s or acc (N, 3) like g.
+    """Raise ``units.UnitError`` if gyr looks like deg/s or acc like g: (N, 3) series, or
+    (S, N, 3) for S sensors (each judged on its own; the message names the sensor).
 
     ``path`` ("arrays", "recording", "update") chooses the fix the message names.
     Non-finite samples are left out (the screening flags them).
