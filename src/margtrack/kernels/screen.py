@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from margtrack.kernels import _fastmath
 from margtrack.kernels.jit import njit
 
 # flag bits (margtrack.estimator.flags.Flag)
@@ -337,12 +338,12 @@ def _disturbed(coef, st, o, lanes, step, k, acc_ok, a0, a1, a2, m0, m1, m2):
     cand_s = st[j + R_CAND_S * lanes]
     if ref_n > 0.0 and (norm > ABSURD * ref_n or norm * ABSURD < ref_n):
         return 2
-    # the dip, computed whatever the acceleration (then kept or not): a call taken on
-    # every path lets the compiler vectorise this across sensors
+    # the dip, computed whatever the acceleration (then kept or not), with no library call
+    # (_fastmath): the compiler then vectorises this across sensors
     a_norm = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
     den = a_norm * norm
     sine = -(a0 * m0 + a1 * m1 + a2 * m2) / (den if den > 0.0 else 1.0)
-    dip = math.asin(min(1.0, max(-1.0, sine)))
+    dip = _fastmath.asin(min(1.0, max(-1.0, sine)))
     if not (acc_ok and abs(a_norm - GRAVITY) < DIP_ACC_TOL_M_S2):
         dip = math.nan
     if ref_n <= 0.0:
