@@ -61,39 +61,33 @@ def test_asin_special_values() -> None:
     assert np.isnan(got[7:]).all()  # outside [-1, 1], nan and inf: nan
 
 
-def _chebyshev_fit_of_asin_r(degree: int) -> list[float]:
-    """R(z) = (asin(√z) - √z) / (z √z) = Σ_{n>=1} c_n z^(n-1), c_n = (2n)! / (4^n (n!)² (2n+1))
-    (asin's Maclaurin series), interpolated at the Chebyshev nodes of [0, 1/4] and written as
-    monomials in z, in 50-digit arithmetic; rounded to doubles at the end."""
-    getcontext().prec = 50
-    terms = [Fraction(math.factorial(2 * n), 4**n * math.factorial(n) ** 2 * (2 * n + 1))
-             for n in range(1, 90)]  # c_90 (1/4)^89: far below 1e-50
-    c = [Decimal(f.numerator) / Decimal(f.denominator) for f in terms]
+def _chebyshev_fit(series: list[Fraction], b: Decimal, degree: int) -> list[float]:
+    """The function Σ series[n] z^n interpolated at the degree + 1 Chebyshev nodes of [0, b]
+    and written as monomials in z, in 60-digit arithmetic; rounded to doubles at the end."""
+    getcontext().prec = 60
+    c = [Decimal(f.numerator) / Decimal(f.denominator) for f in series]
 
-    def r_of(z: Decimal) -> Decimal:
+    def f(z: Decimal) -> Decimal:
         acc = Decimal(0)
         for cn in reversed(c):
             acc = acc * z + cn
         return acc
 
-    pi = Decimal("3.14159265358979323846264338327950288419716939937510")
-
     def cos(x: Decimal) -> Decimal:
         total, term, k = Decimal(1), Decimal(1), 0
-        while abs(term) > Decimal(10) ** -48:
+        while abs(term) > Decimal(10) ** -58:
             k += 2
             term *= -x * x / (k * (k - 1))
             total += term
         return total
 
-    n = degree + 1
-    nodes = [Decimal("0.125") + Decimal("0.125") * cos(pi * (k + Decimal("0.5")) / n)
-             for k in range(n)]
-    values = [r_of(z) for z in nodes]
-    cheb = [sum(values[k] * cos(pi * j * (k + Decimal("0.5")) / n) for k in range(n)) * 2 / n
+    n, h = degree + 1, b / 2
+    nodes = [h + h * cos(_PI * (k + Decimal("0.5")) / n) for k in range(n)]
+    values = [f(z) for z in nodes]
+    cheb = [sum(values[k] * cos(_PI * j * (k + Decimal("0.5")) / n) for k in range(n)) * 2 / n
             for j in range(n)]
     cheb[0] /= 2
-    # Chebyshev polynomials of t as monomials, then t = 8 z - 1
+    # Chebyshev polynomials of t as monomials, then t = z / h - 1
     t_polys = [[Decimal(1)], [Decimal(0), Decimal(1)]]
     for _ in range(2, n):
         new = [Decimal(0)] + [2 * v for v in t_polys[-1]]
@@ -104,12 +98,100 @@ def _chebyshev_fit_of_asin_r(degree: int) -> list[float]:
     in_z = [Decimal(0)] * n
     for i, v in enumerate(in_t):
         for k in range(i + 1):
-            in_z[k] += v * math.comb(i, k) * Decimal(8) ** k * (-1) ** (i - k)
+            in_z[k] += v * math.comb(i, k) / h**k * (-1) ** (i - k)
     return [float(v) for v in in_z]
 
 
-def test_asin_coefficients_are_the_chebyshev_fit_of_its_series() -> None:
-    assert list(_fastmath.ASIN_R) == _chebyshev_fit_of_asin_r(12)
-    # and the series itself where it starts: 1/6, 3/40
+_PI = Decimal("3.14159265358979323846264338327950288419716939937510582097494459")
+
+
+def test_coefficients_are_the_chebyshev_fits_of_the_series() -> None:
+    """Each tuple from its function's Maclaurin series (the terms after the first one or
+    two, over the power of z the polynomial multiplies)."""
+    getcontext().prec = 60
+    asin = [Fraction(math.factorial(2 * n), 4**n * math.factorial(n) ** 2 * (2 * n + 1))
+            for n in range(1, 90)]  # c_90 (1/4)^89: far below 1e-50
+    sin = [Fraction((-1) ** n, math.factorial(2 * n + 1)) for n in range(1, 40)]
+    cos = [Fraction((-1) ** n, math.factorial(2 * n)) for n in range(2, 40)]
+    atan = [Fraction((-1) ** n, 2 * n + 1) for n in range(1, 400)]  # 0.1716^400: nothing
+    quarter_pi_squared = (_PI / 4) ** 2
+    tan_pi8_squared = (Decimal(2).sqrt() - 1) ** 2
+    assert list(_fastmath.ASIN_R) == _chebyshev_fit(asin, Decimal("0.25"), 12)
+    assert list(_fastmath.SIN_S) == _chebyshev_fit(sin, quarter_pi_squared, 5)
+    assert list(_fastmath.COS_C) == _chebyshev_fit(cos, quarter_pi_squared, 5)
+    assert list(_fastmath.ATAN_A) == _chebyshev_fit(atan, tan_pi8_squared, 10)
+    # and the series where they start: 1/6, -1/6, 1/24, -1/3
     assert _fastmath.ASIN_R[0] == pytest.approx(1 / 6, rel=1e-15)
-    assert _fastmath.ASIN_R[1] == pytest.approx(3 / 40, rel=1e-12)
+    assert (_fastmath.SIN_S[0], _fastmath.COS_C[0], _fastmath.ATAN_A[0]) == (-1 / 6, 1 / 24, -1 / 3)
+
+
+def test_pi_constants_are_pi() -> None:
+    f = _fastmath
+    for hi, lo, value in ((f._PI_HI, f._PI_LO, _PI), (f._PIO2_HI, f._PIO2_LO, _PI / 2),
+                          (f._PIO4_HI, f._PIO4_LO, _PI / 4)):
+        assert abs(Decimal(hi) + Decimal(lo) - value) < Decimal(10) ** -32
+    pieces = (Decimal(f._P1), Decimal(f._P2), Decimal(f._P3))
+    assert abs(sum(pieces) - _PI / 2) < Decimal(10) ** -36
+    for piece in pieces[:2]:  # 33 bits: k times it exact for |k| < 2^20
+        mantissa, _ = math.frexp(float(piece))
+        assert (mantissa * 2**33).is_integer()
+
+
+@njit(cache=True)
+def _sincos_all(xs, sin_out, cos_out):
+    for i in range(xs.shape[0]):
+        sin_out[i], cos_out[i] = _fastmath.sincos(xs[i])
+
+
+@njit(cache=True)
+def _atan2_all(ys, xs, out):
+    for i in range(xs.shape[0]):
+        out[i] = _fastmath.atan2(ys[i], xs[i])
+
+
+def _ulps_of(got: np.ndarray, exact: np.ndarray) -> np.ndarray:
+    """|got - exact| in ulp of the correctly rounded value (exact: long double)."""
+    ref = exact.astype(np.float64)
+    return np.abs(got - ref) / np.spacing(np.abs(ref))
+
+
+def test_sincos_is_within_two_ulp() -> None:
+    rng = np.random.default_rng(6)
+    quarter = np.arange(-40, 41) * (np.pi / 4)  # the octant boundaries and around them
+    xs = np.concatenate([
+        rng.uniform(-7.0, 7.0, 300_000), rng.uniform(-1e-3, 1e-3, 20_000),
+        rng.uniform(-1e5, 1e5, 50_000), quarter, np.nextafter(quarter, 99.0),
+        np.nextafter(quarter, -99.0), np.logspace(-300, 6, 2_000),
+    ])
+    sin_x, cos_x = np.empty_like(xs), np.empty_like(xs)
+    _sincos_all(xs, sin_x, cos_x)
+    exact = xs.astype(np.longdouble)
+    assert _ulps_of(sin_x, np.sin(exact)).max() <= 2.0
+    assert _ulps_of(cos_x, np.cos(exact)).max() <= 2.0
+    assert np.all(sin_x * sin_x + cos_x * cos_x == pytest.approx(1.0, abs=5e-16))
+    specials = np.array([0.0, -0.0, np.nan, np.inf])
+    sin_s, cos_s = np.empty(4), np.empty(4)
+    with np.errstate(invalid="ignore"):  # (numpy scalars when the JIT is off)
+        _sincos_all(specials, sin_s, cos_s)
+    assert (sin_s[0], cos_s[0], sin_s[1], cos_s[1]) == (0.0, 1.0, 0.0, 1.0)
+    assert np.isnan(sin_s[2:]).all() and np.isnan(cos_s[2:]).all()
+
+
+def test_atan2_is_within_three_ulp_and_takes_the_edge_cases_of_math_atan2() -> None:
+    rng = np.random.default_rng(7)
+    n = 300_000
+    ys = rng.normal(size=n) * np.exp(rng.uniform(-20.0, 20.0, n))
+    xs = rng.normal(size=n) * np.exp(rng.uniform(-20.0, 20.0, n))
+    xs[:1000] = ys[:1000] * rng.choice([-1.0, 1.0], 1000)  # the diagonals
+    got = np.empty(n)
+    _atan2_all(ys, xs, got)
+    assert _ulps_of(got, np.arctan2(ys.astype(np.longdouble), xs.astype(np.longdouble))).max() <= 3
+    values = [0.0, -0.0, 1.0, -1.0, 1e-300, np.inf, -np.inf, np.nan]
+    grid_y, grid_x = (a.ravel() for a in np.meshgrid(values, values))
+    edge = np.empty(grid_x.size)
+    with np.errstate(invalid="ignore", divide="ignore"):  # (numpy scalars, JIT off)
+        _atan2_all(grid_y, grid_x, edge)
+    expected = np.array([math.atan2(y, x) for y, x in zip(grid_y, grid_x, strict=True)])
+    numbers = ~np.isnan(expected)
+    np.testing.assert_array_equal(np.signbit(edge[numbers]), np.signbit(expected[numbers]))
+    np.testing.assert_allclose(edge, expected, rtol=4e-16, atol=0.0)

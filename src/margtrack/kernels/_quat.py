@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 
+from margtrack.kernels._fastmath import sincos
 from margtrack.kernels.jit import njit
 
 
@@ -27,11 +28,13 @@ def exp_half(wx, wy, wz, dt):
     """exp(ω dt / 2): the rotation by the rotation vector ω·dt (rad)."""
     angle = math.sqrt(wx * wx + wy * wy + wz * wz) * dt
     half = 0.5 * angle
+    # (sin and cos without a library call, so a loop over sensors vectorises: _fastmath)
+    sin_half, cos_half = sincos(half)
     if angle < 1e-6:
         scale = (0.5 - angle * angle / 48.0) * dt
     else:
-        scale = math.sin(half) / angle * dt
-    return math.cos(half), wx * scale, wy * scale, wz * scale
+        scale = sin_half / angle * dt
+    return cos_half, wx * scale, wy * scale, wz * scale
 
 
 @njit(cache=True, inline="always")

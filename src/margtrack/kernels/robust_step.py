@@ -8,15 +8,16 @@ gets the same arithmetic in either (bit for bit).
 ``steady=True`` (a constant) is the lockstep pass: the caller has checked
 (``robust._rare_at``) that this sample takes none of the rare branches (no interval, the
 first accelerometer samples since a start, an all-zero accelerometer, gains not cached
-for this interval, no field reference yet), so the step leaves them out of its code, and
-takes its ``atan2`` calls unconditionally (a call inside a branch stops the vectoriser);
-the other branches become selects. Everything is computed in ENU.
+for this interval, no field reference yet), so the step leaves them out of its code; the
+other branches become selects (its angles come from ``_fastmath``: a library call inside
+a branch would stop the vectoriser). Everything is computed in ENU.
 """
 
 from __future__ import annotations
 
 import math
 
+from margtrack.kernels._fastmath import atan2, sincos
 from margtrack.kernels._quat import exp_half, mul, normalized
 from margtrack.kernels.jit import njit
 from margtrack.kernels.robust_gains import (
@@ -189,13 +190,11 @@ def _incline(st, o, lanes, coef, b0, a1, a2, step, x0, x1, x2, rest, steady):
 
 
 @njit(cache=True, inline="always")
-def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, dip_any, field_heading_any,
-             steady):
+def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, steady):
     """Heading from the horizontal field (004's vector rejection), unless the field's norm
     or dip disagrees with the tracked reference; returns whether it did (disturbed).
     (mx, my, mz): the field in the level frame; ``k_ref``, ``k_mag``: the interval's gains
-    (read only when step > 0); in the lockstep pass (``steady``) the dip and the field's
-    heading come computed (``step_at``), else they are computed here when needed."""
+    (read only when step > 0)."""
     m_norm = math.sqrt(mx * mx + my * my + mz * mz)
     horizontal = math.sqrt(mx * mx + my * my)
     # an all-zero sample (no measurement) has m_norm == 0: skipped
@@ -205,7 +204,7 @@ def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, dip_any, field_
     i_cn, i_cd, i_cs = o + R_CAND_NORM * lanes, o + R_CAND_DIP * lanes, o + R_CAND_S * lanes
     i_n, i_since = o + R_HEADING_N * lanes, o + R_SINCE_START * lanes
     if usable:
-        dip = dip_any if steady else math.atan2(-mz, horizontal)
+        dip = atan2(-mz, horizontal)
         if not steady:  # (the lockstep pass has both references)
             if st[i_nref] <= 0.0:
                 st[i_nref] = m_norm
@@ -233,7 +232,7 @@ def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, dip_any, field_
                     st[i_n] += 1.0
                     k = max(k, 1.0 / st[i_n])
                 # angle of the horizontal field from north (+y) towards east (+x)
-                field_heading = field_heading_any if steady else math.atan2(mx, my)
+                field_heading = atan2(mx, my)
                 i_head = o + R_HEADING * lanes
                 head = st[i_head]
                 st[i_head] = _wrap(head + k * _wrap(field_heading - head))
@@ -318,16 +317,11 @@ def step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag,
     q6w, q6x, q6y, q6z = mul(st[i_c], st[i_c + lanes], st[i_c + 2 * lanes], st[i_c + 3 * lanes],
                              st[i_g], st[i_g + lanes], st[i_g + 2 * lanes], st[i_g + 3 * lanes])
     disturbed = False
-    mx, my, mz = rotate(q6w, q6x, q6y, q6z, m0, m1, m2)  # the field in the level frame
-    # the lockstep pass takes the angles on every path (a call inside a branch, even one on
-    # has_mag, stops the vectoriser; atan2(0, 0) = 0 when unused)
-    dip_any = math.atan2(-mz, math.sqrt(mx * mx + my * my)) if steady else 0.0
-    field_heading_any = math.atan2(mx, my) if steady else 0.0
     if has_mag:
-        disturbed = _heading(st, o, lanes, coef, k_ref, k_mag, dt, mx, my, mz, dip_any,
-                             field_heading_any, steady)
-        half = 0.5 * st[o + R_HEADING * lanes]
-        ow, ox, oy, oz = mul(math.cos(half), 0.0, 0.0, math.sin(half), q6w, q6x, q6y, q6z)
+        mx, my, mz = rotate(q6w, q6x, q6y, q6z, m0, m1, m2)  # the field in the level frame
+        disturbed = _heading(st, o, lanes, coef, k_ref, k_mag, dt, mx, my, mz, steady)
+        sin_half, cos_half = sincos(0.5 * st[o + R_HEADING * lanes])
+        ow, ox, oy, oz = mul(cos_half, 0.0, 0.0, sin_half, q6w, q6x, q6y, q6z)
     else:
         ow, ox, oy, oz = q6w, q6x, q6y, q6z
     ned = coef[C_NED] > 0.5
