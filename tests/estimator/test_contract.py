@@ -8,7 +8,7 @@ import pytest
 from margtrack import methods
 from margtrack import quaternion as quat
 from margtrack.estimator import Flag
-from margtrack.estimator.contract import initial_orientation
+from margtrack.estimator.initial import initial_orientation
 from margtrack.filters.gyro import GyroIntegration
 from margtrack.recording import Recording
 from margtrack.units import UnitError

@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from margtrack.bench.metrics import ErrorSummary, error_series
-from margtrack.estimator.contract import Estimate
+from margtrack.estimator.estimate import Estimate
 from margtrack.recording import Recording
 
 __all__ = [

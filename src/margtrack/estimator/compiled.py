@@ -25,7 +25,8 @@ from numpy.typing import ArrayLike, NDArray
 from margtrack import quaternion as quat
 from margtrack.estimator import screening
 from margtrack.estimator.compiled_state import CompiledState
-from margtrack.estimator.contract import Estimate, Estimator
+from margtrack.estimator.contract import Estimator
+from margtrack.estimator.estimate import Estimate
 from margtrack.estimator.flags import first_problem
 from margtrack.estimator.outputs import Deferred, Outputs
 from margtrack.estimator.params import Params

@@ -1,4 +1,5 @@
-"""The estimator contract: state, ``update``/``run``, restarts and the ``Estimate``.
+"""The estimator contract: :class:`Estimator`, with ``update``/``run`` and restarts (its
+``State`` and ``Estimate`` in :mod:`~margtrack.estimator.estimate`).
 
 Every estimator and filter in margtrack subclasses :class:`Estimator`, so the CLI, the
 benchmarks and the live engine can swap them:
@@ -21,175 +22,33 @@ explicit ``dt`` or the ``rate_hz`` given to the constructor.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 from abc import ABC, abstractmethod
-from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar, Generic, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from margtrack import frames
 from margtrack import quaternion as quat
 from margtrack.estimator import screening
+from margtrack.estimator.estimate import Estimate, State, rows_of, squeezed
 from margtrack.estimator.flags import Flag, first_problem
-from margtrack.estimator.outputs import Outputs
+from margtrack.estimator.initial import initial_orientation, usable_for_init
+from margtrack.estimator.inputs import Inputs, recordings, signal_array
 from margtrack.estimator.params import Params
-from margtrack.estimator.units import UnitProbe, check_series_units
-from margtrack.kernels import triad as triad_kernel
+from margtrack.estimator.units import UnitProbe, check_series_units, scale_to_si
 from margtrack.recording import Recording
 
 Array = NDArray[np.float64]
 
-__all__ = ["Estimate", "Estimator", "State", "initial_orientation"]
+__all__ = ["Estimator"]
 
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 
-@dataclass
-class State:
-    """State shared by every method: orientations, the clock and the input screening.
-
-    quat : (S, 4) orientation after the last processed sample.
-    t_last_s : time of the last accepted sample, s (``nan`` before the first sample).
-    ready : (S,) whether each sensor has been initialised (since the start or last gap).
-    screen : the input screening's memory (:class:`~margtrack.estimator.screening.ScreenState`).
-    """
-
-    quat: Array
-    t_last_s: float = float("nan")
-    ready: NDArray[np.bool_] | None = None
-    screen: screening.ScreenState | None = None
-
-    def copy(self) -> State:
-        """An independent copy (the kernels update state arrays in place).
-
-        Arrays and nested state dataclasses are copied (the latter by their own
-        ``copy()``), containers deep-copied, scalars shared; cheaper than a generic
-        deep copy, which ``update`` would otherwise pay on every sample.
-        """
-        values = {}
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, np.ndarray) or dataclasses.is_dataclass(value):
-                value = value.copy()  # a nested state dataclass provides its own copy()
-            elif isinstance(value, (list, dict, set)):
-                value = copy.deepcopy(value)
-            values[f.name] = value
-        return type(self)(**values)
-
-    def gyr_bias_rad_s(self) -> Array | None:
-        """(S, 3) the gyro bias the method has estimated, rad/s (None: it has none)."""
-        return None
-
-    def gyr_bias_sd_rad_s(self) -> Array | None:
-        """(S, 3) standard deviation of that bias estimate, rad/s (None: not known)."""
-        return None
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """The orientation series an estimator produced, and what else it knows.
-
-    quat : (N, 4) or (S, N, 4) orientation of the body in ``frame``, [w, x, y, z].
-    t : (N,) sample times, s (as given).
-    frame : earth frame of ``quat``.
-    method : registered method name.
-    params : the parameters used, as a dict.
-    outputs : further per-sample series with units in their names (for example
-        ``gyr_bias_rad_s`` (…, N, 3)); a method may compute some only when first read
-        (:class:`~margtrack.estimator.outputs.Outputs`).
-    flags : (N,) or (S, N) uint16 health flags (:class:`~margtrack.estimator.flags.Flag`).
-    """
-
-    quat: Array
-    t: Array
-    frame: frames.Frame
-    method: str
-    params: Mapping[str, Any]
-    outputs: Mapping[str, NDArray[Any]] = field(default_factory=dict)
-    flags: NDArray[np.uint16] | None = None
-
-    @property
-    def n_samples(self) -> int:
-        """Number of samples N."""
-        return int(self.t.shape[0])
-
-    def euler(self) -> Array:
-        """ZYX Euler angles [yaw, pitch, roll] in rad, shape of ``quat`` with 3 last."""
-        return quat.to_euler(self.quat)
-
-    def in_frame(self, frame: str) -> Estimate:
-        """The same estimate with orientations expressed in another earth frame."""
-        target = frames.check_frame(frame)
-        if target == self.frame:
-            return self
-        return dataclasses.replace(
-            self, quat=frames.convert(self.quat, self.frame, target), frame=target
-        )
-
-
-def initial_orientation(acc: ArrayLike, mag: ArrayLike | None, frame: str) -> Array:
-    """Orientation measured from one accelerometer (and magnetometer) sample per sensor.
-
-    acc (S, 3) any units, mag (S, 3) or None; returns (S, 4) body-to-``frame``. With a
-    magnetometer this is TRIAD (heading from the horizontal field); without one it is the
-    shortest arc taking the measured acceleration to up (heading left as it falls).
-    Raises ``ValueError`` for a zero accelerometer vector or one parallel to the field.
-    """
-    acc = np.ascontiguousarray(acc, dtype=np.float64).reshape(-1, 3)
-    up = frames.up(frame)
-    norms = np.linalg.norm(acc, axis=1)
-    if np.any(~(norms > 0)):
-        s = int(np.flatnonzero(~(norms > 0))[0])
-        raise ValueError(
-            f"cannot initialise sensor {s}: its accelerometer sample is zero; "
-            "pass q0 to reset() or drop the leading samples"
-        )
-    if mag is None:
-        return quat.shortest_arc(acc, up)
-    mag = np.ascontiguousarray(mag, dtype=np.float64).reshape(-1, 3)
-    north = frames.mag_reference(frame, dip_deg=0.0)
-    out = np.empty((acc.shape[0], 4))
-    flags = np.empty(acc.shape[0], dtype=np.int8)
-    triad_kernel.triad(acc, mag, up, north, out, flags)
-    if np.any(flags != triad_kernel.OK):
-        s = int(np.flatnonzero(flags != triad_kernel.OK)[0])
-        why = {
-            triad_kernel.ZERO_MAG: "its magnetometer sample is zero",
-            triad_kernel.PARALLEL: "its accelerometer and magnetometer are parallel",
-        }.get(int(flags[s]), "its sample is degenerate")
-        raise ValueError(
-            f"cannot initialise sensor {s} from its sample: {why}; "
-            "pass q0 to reset() or drop the leading samples"
-        )
-    return out
-
-
-def _usable_for_init(acc: Array, mag: Array | None) -> NDArray[np.bool_]:
-    """(S, N) samples that can initialise: acc non-zero and, with mag, not parallel to it."""
-    acc_norm = np.linalg.norm(acc, axis=-1)
-    ok = acc_norm > 0
-    if mag is not None:
-        mag_norm = np.linalg.norm(mag, axis=-1)
-        cross = np.linalg.norm(np.cross(acc, mag), axis=-1)
-        ok &= cross >= triad_kernel.PARALLEL_SINE * acc_norm * mag_norm * (1 + 1e-9)
-        ok &= mag_norm > 0
-    return ok
-
-
 P = TypeVar("P", bound=Params)
 S = TypeVar("S", bound=State)
-
-
-@dataclass
-class _Inputs:
-    t: Array  # (N,)
-    gyr: Array | None  # (S, N, 3)
-    acc: Array  # (S, N, 3)
-    mag: Array | None  # (S, N, 3)
 
 
 class Estimator(ABC, Generic[P, S]):
@@ -406,7 +265,7 @@ class Estimator(ABC, Generic[P, S]):
         if data is not None:
             if any(x is not None for x in (gyr, acc, mag, t, rate_hz)):
                 raise ValueError("give either a Recording or arrays, not both")
-            recs = [data] if isinstance(data, Recording) else _recordings(data)
+            recs = [data] if isinstance(data, Recording) else recordings(data)
             if not recs:
                 raise ValueError("run() got an empty list of recordings")
             for r in recs[1:]:
@@ -435,7 +294,7 @@ class Estimator(ABC, Generic[P, S]):
                 recs[0].t,
                 check_units=False,
             )
-            return _squeezed(est) if isinstance(data, Recording) else est
+            return squeezed(est) if isinstance(data, Recording) else est
         if acc is None:
             raise ValueError("run() needs a Recording or at least acc (and gyr) arrays")
         one = np.asarray(acc).ndim == 2
@@ -450,10 +309,10 @@ class Estimator(ABC, Generic[P, S]):
                 arr = arr * scale
             return arr[None] if arr.ndim == 2 else arr
 
-        gyr_a = lift(gyr, _unit_scale("gyr", gyr_unit))
-        acc_a = lift(acc, _unit_scale("acc", acc_unit))
+        gyr_a = lift(gyr, scale_to_si("gyr", gyr_unit))
+        acc_a = lift(acc, scale_to_si("acc", acc_unit))
         est = self._run_arrays(gyr_a, acc_a, lift(mag), times, check_units=check_units)
-        return _squeezed(est) if one else est
+        return squeezed(est) if one else est
 
     # -- internals ------------------------------------------------------------------------
     def _timestamps(self, t: ArrayLike | None, rate_hz: float | None, n: int) -> Array:
@@ -481,9 +340,9 @@ class Estimator(ABC, Generic[P, S]):
         t: Array,
         *,
         check_units: bool = False,
-    ) -> _Inputs:
+    ) -> Inputs:
         """Shapes checked, arrays (S, N, 3); with ``check_units`` also deg/s and g refused."""
-        acc_a = _signal(acc, "acc")
+        acc_a = signal_array(acc, "acc")
         n = acc_a.shape[1]
         if n == 0:
             raise ValueError("no samples to process (acc has N = 0)")
@@ -491,10 +350,10 @@ class Estimator(ABC, Generic[P, S]):
         if self.uses_gyr:
             if gyr is None:
                 raise ValueError(f"method {self.name!r} needs gyroscope data (gyr)")
-            gyr_a = _signal(gyr, "gyr", acc_a.shape)
+            gyr_a = signal_array(gyr, "gyr", acc_a.shape)
         mag_a = None
         if mag is not None:
-            mag_a = _signal(mag, "mag", acc_a.shape)
+            mag_a = signal_array(mag, "mag", acc_a.shape)
         elif not self.mag_optional:
             raise ValueError(
                 f"method {self.name!r} needs a magnetometer; give mag or choose a method "
@@ -504,7 +363,7 @@ class Estimator(ABC, Generic[P, S]):
             raise ValueError(f"t must have shape ({n},), got {t.shape}")
         if check_units:
             check_series_units(gyr_a, acc_a, path="arrays")
-        return _Inputs(t=t, gyr=gyr_a, acc=acc_a, mag=mag_a)
+        return Inputs(t=t, gyr=gyr_a, acc=acc_a, mag=mag_a)
 
     def _fresh_state(self, n_sensors: int) -> S:
         state = self._new_state(np.tile(_IDENTITY, (n_sensors, 1)))
@@ -596,7 +455,7 @@ class Estimator(ABC, Generic[P, S]):
                     work.ready[rows] = True
                     started_all = len(starts) == int(np.count_nonzero(work.ready))
             held = np.flatnonzero(~work.ready)
-            frozen = _rows_of(work, held) if held.size else {}
+            frozen = rows_of(work, held) if held.size else {}
             seg = slice(pos, end)
             dt = scr.dt[seg].copy()
             if waiting.size and starts and started_all:
@@ -643,71 +502,12 @@ class Estimator(ABC, Generic[P, S]):
     def _usable(self, scr: screening.Screened) -> NDArray[np.bool_]:
         """(S, N) samples that can (re)initialise the method."""
         if scr.mag is None:
-            return _usable_for_init(scr.acc, None)
-        with_mag = _usable_for_init(scr.acc, scr.mag)
+            return usable_for_init(scr.acc, None)
+        with_mag = usable_for_init(scr.acc, scr.mag)
         if not self.mag_optional:
             return with_mag
         # a mag-optional method starts from the accelerometer when the field is unusable
         no_field = ~(np.linalg.norm(scr.mag, axis=-1) > 0)
-        return with_mag | (_usable_for_init(scr.acc, None) & no_field)
+        return with_mag | (usable_for_init(scr.acc, None) & no_field)
 
 
-def _rows_of(state: State, rows: NDArray[np.intp]) -> dict[str, Array]:
-    """Copies of the given sensors' rows of every per-sensor array field of ``state``."""
-    n_sensors = state.quat.shape[0]
-    out = {}
-    for f in dataclasses.fields(state):
-        value = getattr(state, f.name)
-        if f.name != "screen" and isinstance(value, np.ndarray) and value.ndim >= 1:
-            if value.shape[0] == n_sensors and f.name != "ready":
-                out[f.name] = value[rows].copy()
-    return out
-
-
-def _recordings(data: object) -> list[Recording]:
-    """``data`` as a list of Recordings, or a TypeError saying what to pass instead."""
-    if hasattr(data, "columns") and hasattr(data, "iloc"):  # a pandas DataFrame (duck-typed)
-        raise TypeError(
-            "run() takes a Recording, not a pandas DataFrame: convert it first with "
-            "margtrack.io.from_dataframe(df, columns={...}, gyr_unit=..., acc_unit=...)"
-        )
-    items = list(data) if isinstance(data, Iterable) and not isinstance(data, str) else None
-    if items is None or not all(isinstance(r, Recording) for r in items):
-        raise TypeError(
-            f"run() takes a Recording or a list of Recordings, not {type(data).__name__}; "
-            "for arrays use run(gyr=..., acc=..., mag=..., t=...)"
-        )
-    return items
-
-
-def _squeezed(est: Estimate) -> Estimate:
-    """The single-sensor view of an (S = 1) estimate."""
-    return dataclasses.replace(
-        est,
-        quat=est.quat[0],
-        outputs=(
-            est.outputs.mapped(lambda _, v: v[0])
-            if isinstance(est.outputs, Outputs)
-            else {k: v[0] for k, v in est.outputs.items()}
-        ),
-        flags=None if est.flags is None else est.flags[0],
-    )
-
-
-def _unit_scale(signal: str, unit: str) -> float:
-    from margtrack.estimator.units import scale_to_si
-
-    return scale_to_si(signal, unit)
-
-
-def _signal(value: ArrayLike, name: str, like: tuple[int, ...] | None = None) -> Array:
-    """(S, N, 3) float64 contiguous; non-finite values are left to the screening."""
-    try:
-        arr = np.ascontiguousarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be numeric: {exc}") from None
-    if arr.ndim != 3 or arr.shape[-1] != 3:
-        raise ValueError(f"{name} must have shape (N, 3) or (S, N, 3), got {arr.shape}")
-    if like is not None and arr.shape != like:
-        raise ValueError(f"{name} has shape {arr.shape} but acc has {like}")
-    return arr

@@ -62,7 +62,7 @@ from numpy.typing import ArrayLike, NDArray
 from margtrack import frames
 from margtrack import quaternion as quat
 from margtrack.estimator.compiled import CompiledState
-from margtrack.estimator.contract import Estimate
+from margtrack.estimator.estimate import Estimate
 from margtrack.estimator.flags import Flag
 from margtrack.filters.robust import Robust, RobustParams
 from margtrack.kernels import contract as kc

@@ -25,7 +25,7 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
-from margtrack.estimator.contract import Estimate
+from margtrack.estimator.estimate import Estimate
 from margtrack.frames import check_frame
 from margtrack.io.estimate_csv import PARAMS_PREFIX, UNITS_PREFIX
 

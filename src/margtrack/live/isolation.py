@@ -4,7 +4,7 @@ The engine runs the S sensors of a session in one estimator (one compiled call p
 A fault of one sensor must stay with that sensor, so these helpers act on the rows of the
 estimator's state that belong to one sensor, for both state kinds of the contract
 (:class:`~margtrack.estimator.compiled.CompiledState`, ``rows`` (S, R), and the dataclass
-:class:`~margtrack.estimator.contract.State` with per-sensor arrays of first axis S):
+:class:`~margtrack.estimator.estimate.State` with per-sensor arrays of first axis S):
 
 - :func:`restart`: the sensor waits for its next usable sample and starts from it, keeping
   what the method knows of it (gyro bias), as after a gap of the input policy;
