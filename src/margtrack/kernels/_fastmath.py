@@ -53,22 +53,13 @@ _P1, _P2, _P3 = 1.5707963267341256, 6.077100506303966e-11, 2.0222662487959506e-2
 
 
 @njit(cache=True, inline="always")
-def _asin_r(z):
-    """R(z) of :data:`ASIN_R` (Horner)."""
-    c = ASIN_R
-    p = c[12]
-    p = p * z + c[11]
-    p = p * z + c[10]
-    p = p * z + c[9]
-    p = p * z + c[8]
-    p = p * z + c[7]
-    p = p * z + c[6]
-    p = p * z + c[5]
-    p = p * z + c[4]
-    p = p * z + c[3]
-    p = p * z + c[2]
-    p = p * z + c[1]
-    return p * z + c[0]
+def _horner(c, z):
+    """Σ c[k] z^k for a tuple of constants c (Horner; the loop's length is a constant, so
+    LLVM unrolls it and a loop over sensors around it still vectorises)."""
+    p = c[len(c) - 1]
+    for k in range(len(c) - 2, -1, -1):
+        p = p * z + c[k]
+    return p
 
 
 @njit(cache=True, inline="always")
@@ -86,24 +77,10 @@ def asin(x):
     # (abs: z >= 0 wherever it is used; it lets LLVM take the sqrt instruction, libm's
     # sqrt sets errno for a negative argument)
     y = math.sqrt(abs(z)) if big else ax
-    r = y + y * z * _asin_r(z)
+    r = y + y * z * _horner(ASIN_R, z)
     r = _PIO2_HI - (2.0 * r - _PIO2_LO) if big else r
     r = r if ax <= 1.0 else math.nan  # (nan for nan too: the comparison is false)
     return math.copysign(r, x)
-
-
-@njit(cache=True, inline="always")
-def _sin_s(z):
-    """The polynomial of :data:`SIN_S` at z (Horner)."""
-    c = SIN_S
-    return ((((c[5] * z + c[4]) * z + c[3]) * z + c[2]) * z + c[1]) * z + c[0]
-
-
-@njit(cache=True, inline="always")
-def _cos_c(z):
-    """The polynomial of :data:`COS_C` at z (Horner)."""
-    c = COS_C
-    return ((((c[5] * z + c[4]) * z + c[3]) * z + c[2]) * z + c[1]) * z + c[0]
 
 
 @njit(cache=True, inline="always")
@@ -117,30 +94,13 @@ def sincos(x):
     k = np.floor(x * _TWO_OVER_PI + 0.5)  # (a float: math.floor gives an int)
     r = ((x - k * _P1) - k * _P2) - k * _P3
     z = r * r
-    s = r + r * z * _sin_s(z)
-    c = 1.0 - 0.5 * z + z * z * _cos_c(z)
+    s = r + r * z * _horner(SIN_S, z)
+    c = 1.0 - 0.5 * z + z * z * _horner(COS_C, z)
     quadrant = k - 4.0 * np.floor(k * 0.25)  # 0, 1, 2 or 3
     sin_x = s if quadrant == 0.0 else (c if quadrant == 1.0 else (-s if quadrant == 2.0 else -c))
     cos_x = c if quadrant == 0.0 else (-s if quadrant == 1.0 else (-c if quadrant == 2.0 else s))
     finite = abs(x) < math.inf  # (inf and nan: nan)
     return (sin_x if finite else math.nan), (cos_x if finite else math.nan)
-
-
-@njit(cache=True, inline="always")
-def _atan_a(z):
-    """The polynomial of :data:`ATAN_A` at z (Horner)."""
-    c = ATAN_A
-    p = c[10]
-    p = p * z + c[9]
-    p = p * z + c[8]
-    p = p * z + c[7]
-    p = p * z + c[6]
-    p = p * z + c[5]
-    p = p * z + c[4]
-    p = p * z + c[3]
-    p = p * z + c[2]
-    p = p * z + c[1]
-    return p * z + c[0]
 
 
 @njit(cache=True, inline="always")
@@ -158,7 +118,7 @@ def atan2(y, x):
     big = t > _TAN_PIO8
     u = (t - 1.0) / (t + 1.0) if big else t
     z = u * u
-    a = u + u * z * _atan_a(z)
+    a = u + u * z * _horner(ATAN_A, z)
     a = _PIO4_HI + (a + _PIO4_LO) if big else a
     a = _PIO2_HI - (a - _PIO2_LO) if ay > ax else a
     a = _PI_HI - (a - _PI_LO) if math.copysign(1.0, x) < 0.0 else a
