@@ -255,7 +255,7 @@ def test_several_sensors_are_judged_each_and_the_message_names_the_sensor() -> N
                        r"rad/s on \d+ of 900 samples \(first at sample 4[0-4]\)"):
         check_unit_magnitudes(gyr, acc)
     acc[1] /= 9.81  # sensor 1 in g
-    acc[3, ::2] = np.nan  # half of sensor 3 missing: no evidence either way
+    acc[3, ::2] = np.nan  # half of sensor 3 missing: judged on the other half
     with pytest.raises(UnitError, match=r"^sensor 1: acc has a median norm of 1\.0\d\d, about 1 g"):
         check_unit_magnitudes(np.zeros((4, n, 3)), acc)
     for s in range(4):  # the same decisions, one sensor at a time
@@ -266,6 +266,22 @@ def test_several_sensors_are_judged_each_and_the_message_names_the_sensor() -> N
             assert refused and not str(exc).startswith("sensor"), exc
         else:
             assert not refused
+
+
+def test_acc_in_g_with_missing_samples_is_still_refused() -> None:
+    """Dropped samples (nan) are left out of the median, not a reason to skip the check; a
+    sensor with no finite sample at all is no evidence."""
+    acc = np.tile([0.0, 0.6, 0.8], (3, 500, 1))  # 1 g: in g
+    acc[0, 7] = np.nan  # one dropped sample
+    acc[1, ::3] = np.nan  # a third dropped
+    acc[2] = np.nan  # nothing
+    with pytest.raises(UnitError, match=r"^sensor 0: acc has a median norm of 1\.000"):
+        check_unit_magnitudes(np.zeros((3, 500, 3)), acc)
+    with pytest.raises(UnitError, match=r"^sensor 0: acc has a median norm of 1\.000"):
+        check_unit_magnitudes(np.zeros((2, 500, 3)), acc[1:])  # the third dropped
+    with pytest.raises(UnitError, match=r"^acc has a median norm of 1\.000"):
+        check_unit_magnitudes(np.zeros((500, 3)), acc[0])
+    check_unit_magnitudes(np.zeros((500, 3)), acc[2])
 
 
 def test_run_on_several_sensors_names_the_sensor_in_deg_s() -> None:

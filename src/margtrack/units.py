@@ -8,6 +8,7 @@ refuses data whose magnitudes betray a unit mix-up (gyr in deg/s, acc in g) with
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Mapping
 
 import numpy as np
@@ -151,8 +152,9 @@ def check_unit_magnitudes(
         the unit on its own path (an option, a keyword); default :func:`unit_fix_api`.
 
     The message names the offending sample (gyr) or the median norm (acc), the sensor when
-    there are several, the suspected unit and the fix. Non-finite samples count as no
-    evidence. The sensors are checked together (a few numpy passes, no loop over them).
+    there are several, the suspected unit and the fix. Non-finite samples are left out (a
+    sensor with no finite sample is no evidence). The sensors are checked together (a few
+    numpy passes, no loop over them).
     """
     fix = unit_fix_api if fix is None else fix
     gyr = np.asarray(gyr_rad_s, dtype=np.float64)
@@ -200,7 +202,14 @@ def _check_acc(acc: Array, several: bool, fix: Callable[[str, str], str]) -> Non
     # 20,000 samples in all, at least 256 per sensor
     per_sensor = max(256, 20_000 // acc.shape[0])
     sub = acc[:, :: max(1, -(-acc.shape[1] // per_sensor))]
-    medians = np.median(np.sqrt(np.einsum("snk,snk->sn", sub, sub)), axis=1)
+    norms = np.sqrt(np.einsum("snk,snk->sn", sub, sub))
+    medians = np.median(norms, axis=1)
+    partial = np.isnan(medians)
+    if partial.any():
+        # a sensor with missing samples: the median of the others (all missing: no evidence)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # (an all-nan sensor)
+            medians[partial] = np.nanmedian(norms[partial], axis=1)
     bad = np.flatnonzero((_ACC_G_LIKELY[0] < medians) & (medians < _ACC_G_LIKELY[1]))
     if bad.size:
         s = int(bad[0])
