@@ -135,3 +135,24 @@ def test_tilt_variance_and_d2_equal_the_angle_covariance_formulas():
     normal2 = theta @ theta - (theta @ z) ** 2
     d2 = cov.tilt_d2(row, P0, *q, *m, *z, 1e-4)
     assert d2 == pytest.approx(normal2 / (expected + 1e-4), rel=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_triad_noise_is_eq_46_of_eq_45s_angle_covariance(seed):
+    # ¼ Q̃ Ξθ Q̃ᵀ + qqᵀ with eq. 45's Ξθ, written out here from the paper's formula
+    rng = np.random.default_rng(seed)
+    q = quat.normalize(rng.normal(size=4))
+    z, n = rng.normal(size=3), rng.normal(size=3)
+    z, n = z / np.linalg.norm(z), n / np.linalg.norm(n)
+    var_g, var_n = 2e-4, 3e-3
+    cross2 = np.sum(np.cross(z, n) ** 2)
+    xi = var_g * np.eye(3) + ((var_n - var_g) * np.outer(z, z)
+                              + var_g * (z @ n) * (np.outer(z, n) + np.outer(n, z))) / cross2
+    expected = 0.25 * _qtilde(q) @ xi @ _qtilde(q).T + np.outer(q, q)
+    row = np.zeros(16)
+    cov.triad_noise(row, 0, *q, *z, *n, var_g, var_n)
+    np.testing.assert_allclose(row.reshape(4, 4), expected, rtol=0, atol=1e-15)
+    xi_kernel = np.empty((3, 3))
+    k.fill_triad_cov(*z, *n, var_g, var_n, xi_kernel)  # the dense path it replaced
+    np.testing.assert_allclose(row.reshape(4, 4), _quat_noise(q, xi_kernel, 1.0), rtol=0,
+                               atol=1e-15)

@@ -91,11 +91,18 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
     return code_flags(code, disturbed)
 
 
+@njit(cache=True, nogil=True, _nrt=False)
+def series(rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """S sensors' N samples on the shared clock's values (``contract.series``)."""
+    contract.series(_start, _step, _hold, rows, coefs, dts, ks, tflags, gyr, acc, mag,
+                    has, q_out, x_out, flags_out)
+
+
 @njit(cache=True, nogil=True)
 def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples (``contract.run_series``)."""
-    contract.run_series(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
-                        q_out, x_out, flags_out)
+    """S sensors' N samples (``contract.run_series`` with :func:`series`)."""
+    contract.run_series(series, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
+                        flags_out)
 
 
 @njit(cache=True)

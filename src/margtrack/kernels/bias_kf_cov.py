@@ -18,7 +18,9 @@ What the structure buys, each an identity of exact arithmetic (the rounding diff
   measurement's ``V = ¼ Q̃ (σ_G² (I - ẑẑᵀ) + σ_H² ẑẑᵀ) Q̃ᵀ + qqᵀ`` is
   ``¼σ_G² (I - qqᵀ) + ¼(σ_H² - σ_G²) vvᵀ + qqᵀ`` with ``v = Q̃ ẑ``, and the tilt gate's
   ``½ (tr P_θ - ẑᵀ P_θ ẑ)`` with ``P_θ = 4 Q̃ᵀ P_qq Q̃`` is
-  ``2 (tr P_qq - qᵀ P_qq q - vᵀ P_qq v)``;
+  ``2 (tr P_qq - qᵀ P_qq q - vᵀ P_qq v)``; TRIAD's ``V = ¼ Q̃ Ξθ Q̃ᵀ + qqᵀ`` with eq. 45's
+  ``Ξθ`` is ``(1 - ¼σ_G²) qqᵀ + ¼σ_G² I + a vvᵀ + b (vuᵀ + uvᵀ)``, ``v = Q̃ ẑ``,
+  ``u = Q̃ n̂``: no 4x3 and 3x3 products, no array views;
 - update (eqs. 49-51), ``H = [I₄ 0]``: ``S = L D Lᵀ`` and ``W = P_·q L⁻ᵀ`` give
   ``K ν = W D⁻¹ L⁻¹ ν`` and ``P - K S Kᵀ = P - W D⁻¹ Wᵀ``: 150 multiply-adds where the
   gain's two triangular solves per column and the Joseph form's three 7x4 products took
@@ -35,7 +37,7 @@ from margtrack.kernels.jit import njit
 
 __all__ = [
     "N_SCRATCH", "body_direction", "decoupled_noise", "kalman_update", "predict", "tilt_d2",
-    "tilt_variance",
+    "tilt_variance", "triad_noise",
 ]
 
 # scratch offsets (relative to s0)
@@ -230,6 +232,40 @@ def decoupled_noise(row, v0, qw, qx, qy, qz, vw, vx, vy, vz, var_g, var_h):
             qj = qw if j == 0 else (qx if j == 1 else (qy if j == 2 else qz))
             vj = vw if j == 0 else (vx if j == 1 else (vy if j == 2 else vz))
             value = cq * qi * qj + cv * vi * vj + (cg if i == j else 0.0)
+            row[v0 + 4 * i + j] = value
+            row[v0 + 4 * j + i] = value
+
+
+@njit(cache=True, inline="always")
+def triad_noise(row, v0, qw, qx, qy, qz, zx, zy, zz, nx, ny, nz, var_g, var_n):
+    """``V`` (4, 4) row-major at ``row[v0:]`` of the TRIAD quaternion measurement (eq. 46).
+
+    ``¼ Q̃ Ξθ Q̃ᵀ + qqᵀ`` (unit ``q``; unit variance along it, as ``fill_quat_noise``
+    gives the measurement) with eq. 45's angle covariance of the unit body up ``ẑ`` and
+    field ``n̂`` (``bias_kf_model.fill_triad_cov``): ``Ξθ = σ_G² I + [(σ_N² - σ_G²) ẑẑᵀ
+    + σ_G² (ẑ·n̂)(ẑn̂ᵀ + n̂ẑᵀ)] / |ẑ × n̂|²``. With ``v = Q̃ ẑ``, ``u = Q̃ n̂`` and
+    ``Q̃ Q̃ᵀ = I - qqᵀ``: ``V = (1 - ¼σ_G²) qqᵀ + ¼σ_G² I + a vvᵀ + b (vuᵀ + uvᵀ)``,
+    ``a = ¼(σ_N² - σ_G²)/|ẑ × n̂|²``, ``b = ¼σ_G² (ẑ·n̂)/|ẑ × n̂|²``. ``var_g``,
+    ``var_n`` = σ_G², σ_N² rad².
+    """
+    cx, cy, cz = zy * nz - zz * ny, zz * nx - zx * nz, zx * ny - zy * nx
+    inv = 1.0 / (cx * cx + cy * cy + cz * cz)
+    cg = 0.25 * var_g
+    ca = 0.25 * (var_n - var_g) * inv
+    cb = cg * (zx * nx + zy * ny + zz * nz) * inv
+    cq = 1.0 - cg
+    vw, vx, vy, vz = body_direction(qw, qx, qy, qz, zx, zy, zz)
+    uw, ux, uy, uz = body_direction(qw, qx, qy, qz, nx, ny, nz)
+    for i in range(4):
+        qi = qw if i == 0 else (qx if i == 1 else (qy if i == 2 else qz))
+        vi = vw if i == 0 else (vx if i == 1 else (vy if i == 2 else vz))
+        ui = uw if i == 0 else (ux if i == 1 else (uy if i == 2 else uz))
+        for j in range(i, 4):
+            qj = qw if j == 0 else (qx if j == 1 else (qy if j == 2 else qz))
+            vj = vw if j == 0 else (vx if j == 1 else (vy if j == 2 else vz))
+            uj = uw if j == 0 else (ux if j == 1 else (uy if j == 2 else uz))
+            value = (cq * qi * qj + ca * vi * vj + cb * (vi * uj + ui * vj)
+                     + (cg if i == j else 0.0))
             row[v0 + 4 * i + j] = value
             row[v0 + 4 * j + i] = value
 

@@ -136,23 +136,28 @@ def fill_triad_cov(zx, zy, zz, nx, ny, nz, var_g, var_n, out):
             out[i, j] = v + (var_g if i == j else 0.0)
 
 
-@njit(cache=True)
-def _triad(ax, ay, az, mx, my, mz, up, north):
+@njit(cache=True, inline="always")
+def triad_at(ax, ay, az, mx, my, mz, ux, uy, uz, nx, ny, nz):
     """TRIAD (003 eqs. 10-13) as a quaternion, with the unit body vectors it used.
 
-    Returns (flag, w, x, y, z, ẑ (3), n̂ (3)); the quaternion is ``from_matrix`` of
-    ``R = M_ref M_meaᵀ`` (body to earth, i.e. ``(ᵂC_B)ᵀ`` in the reference frame's axes)
-    by the largest of four branches, so every orientation works (eq. 38 is only the
-    ``q0 > 0`` branch and divides by zero at half turns).
+    ``u``, ``n`` the unit earth up and north. Returns (flag, w, x, y, z, ẑ (3), n̂ (3));
+    the quaternion is ``from_matrix`` of ``R = M_ref M_meaᵀ`` (body to earth, i.e.
+    ``(ᵂC_B)ᵀ`` in the reference frame's axes) by the largest of four branches, so every
+    orientation works (eq. 38 is only the ``q0 > 0`` branch and divides by zero at half
+    turns). Scalars in and out: the filter's step inlines it without array views.
     """
     flag, ax, ay, az, mx, my, mz = unit_pair(ax, ay, az, mx, my, mz)  # eqs. 10-11
     if flag != OK:
         return flag, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0
-    s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z = reference_triad(
-        up[0], up[1], up[2], north[0], north[1], north[2]
-    )
+    s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z = reference_triad(ux, uy, uz, nx, ny, nz)
     w, x, y, z = triad_unit(ax, ay, az, mx, my, mz, s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z)
     return OK, w, x, y, z, ax, ay, az, mx, my, mz
+
+
+@njit(cache=True)
+def _triad(ax, ay, az, mx, my, mz, up, north):
+    """:func:`triad_at` with the earth up and north as arrays (3,)."""
+    return triad_at(ax, ay, az, mx, my, mz, up[0], up[1], up[2], north[0], north[1], north[2])
 
 
 @njit(cache=True)

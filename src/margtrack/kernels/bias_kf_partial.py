@@ -71,7 +71,9 @@ def _update(row, p0, s0, m_rows, qw, qx, qy, qz, bx, by, bz):
     return ok, qw, qx, qy, qz, bx, by, bz
 
 
-@njit(cache=True)
+# _nrt=True: its views of the row (``_mat``) need numba's reference counting, also
+# when a kernel compiled without it (a method's ``series``) calls it
+@njit(cache=True, _nrt=True)
 def tilt_only(row, p0, s0, qw, qx, qy, qz, bx, by, bz, ux, uy, uz, ax, ay, az, var_g,
               gate, gate_exponent):  # fmt: skip
     """Correct the tilt alone: returns (ok, q, b) after the update (``P`` in place).
@@ -100,7 +102,9 @@ def tilt_only(row, p0, s0, qw, qx, qy, qz, bx, by, bz, ux, uy, uz, ax, ay, az, v
     return _update(row, p0, s0, 2, qw, qx, qy, qz, bx, by, bz)
 
 
-@njit(cache=True)
+# _nrt=True: its views of the row (``_mat``) need numba's reference counting, also
+# when a kernel compiled without it (a method's ``series``) calls it
+@njit(cache=True, _nrt=True)
 def heading_only(row, p0, s0, qw, qx, qy, qz, bx, by, bz, ux, uy, uz, nx, ny, nz, var_n,
                  ref, r0):  # fmt: skip
     """Correct the heading alone: returns (ok, q, b) after the update (``P`` in place).

@@ -75,10 +75,9 @@ from margtrack.kernels.bias_kf_model import (
     _gate_weight,
     _mag_variance,
     _mat,
-    _triad,
     _up_in_body,
     fill_quat_noise,
-    fill_triad_cov,
+    triad_at,
 )
 from margtrack.kernels.jit import njit
 from margtrack.kernels.triad import OK, PARALLEL, ZERO_ACC, ZERO_MAG, unit_pair
@@ -161,9 +160,9 @@ def filter_step(row, coef, h, gx, gy, gz, acx, acy, acz, mgx, mgy, mgz):
                     flag, mw, mx, my, mz, c2 = _decoupled(qw, qx, qy, qz, ax, ay, az, nx, ny,
                                                           nz, ux, uy, uz, coef, C_REF_TRIAD)
             else:
-                flag, mw, mx, my, mz, ax, ay, az, nx, ny, nz = _triad(
-                    acx, acy, acz, mgx, mgy, mgz, coef[C_UP : C_UP + 3],
-                    coef[C_NORTH : C_NORTH + 3]
+                flag, mw, mx, my, mz, ax, ay, az, nx, ny, nz = triad_at(
+                    acx, acy, acz, mgx, mgy, mgz, coef[C_UP], coef[C_UP + 1], coef[C_UP + 2],
+                    coef[C_NORTH], coef[C_NORTH + 1], coef[C_NORTH + 2],
                 )
             if flag == OK:
                 if mw * qw + mx * qx + my * qy + mz * qz < 0.0:  # sign nearest q⁻
@@ -182,12 +181,9 @@ def filter_step(row, coef, h, gx, gy, gz, acx, acy, acz, mgx, mgy, mgz):
                     vw, vx, vy, vz = cov.body_direction(qw, qx, qy, qz, ux, uy, uz)
                     cov.decoupled_noise(row, NOISE, qw, qx, qy, qz, vw, vx, vy, vz, var_g,
                                         var_n / c2)
-                else:
-                    wk = row[WORK : WORK + N_WORK]
-                    xi = _mat(wk, W_XI, 3, 3)
-                    fill_triad_cov(ax, ay, az, nx, ny, nz, var_g, var_n, xi)  # eq. 45
-                    fill_quat_noise(qw, qx, qy, qz, xi, _mat(wk, W_QT, 4, 3),
-                                    _mat(wk, W_NOISE, 4, 4), 1.0)  # eq. 46
+                else:  # eqs. 45-46 in closed form
+                    cov.triad_noise(row, NOISE, qw, qx, qy, qz, ax, ay, az, nx, ny, nz, var_g,
+                                    var_n)
                 if cov.kalman_update(row, COV, SCRATCH, NOISE, mw - qw, mx - qx, my - qy,
                                      mz - qz):
                     qw, qx, qy, qz = normalized(
@@ -254,7 +250,9 @@ def code_flags(code, disturbed):
     return f
 
 
-@njit(cache=True)
+# _nrt=True: its views of the row (``_mat``) need numba's reference counting, also
+# when a kernel compiled without it (a method's ``series``) calls it
+@njit(cache=True, _nrt=True)
 def start_row(row, coef, first, qw, qx, qy, qz):
     """(Re)start one sensor's filter at q (body to earth).
 

@@ -12,9 +12,10 @@ A method provides three inline functions over one sensor's flat state row ``row`
   ``x_out`` (K,); returns its own flag bits (REST, MAG_DISTURBED, ACC_IGNORED ...);
 - ``hold(row, coef, x_out)``: the extra outputs of the current state, for held samples.
 
-and wraps them in ``@njit`` functions of its own: ``run`` (:func:`run_series` with its
+and wraps them in ``@njit`` functions of its own: ``series`` (:func:`series` with its
 functions as the first arguments: numba compiles, inlines and caches one specialisation
-per method; ``nogil``, so threads can share the sensors), ``sample`` (:func:`sample`
+per method, without reference counting) and ``run`` (:func:`run_series` with its
+``series``; both ``nogil``, so threads can share the sensors), ``sample`` (:func:`sample`
 with its functions, compiled once), ``update`` and ``update_one`` (:func:`update_samples`,
 :func:`update_one` with its ``sample``: its step is compiled once for both, not inlined
 into each) and ``start`` (:func:`start_rows`). All go through the same :func:`_sample`,
@@ -149,21 +150,37 @@ def _sensor_series(start, step, hold, row, coef, scoef, dts, ks, tflags, gyr, ac
 
 
 @njit(cache=True, inline="always")
-def run_series(start, step, hold, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
-               flags_out):
-    """S sensors' N samples with common timestamps ``t`` (N,) s; ``clock`` (1,) in/out.
+def series(start, step, hold, rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
+           flags_out):
+    """S sensors' N samples on a shared clock's values (:func:`_clock_series`): dts, ks,
+    tflags (N,).
 
     rows (S, R) in/out; coefs: the screening coefficients (N_SCOEF) then the method's;
     gyr, acc, mag (S, N, 3); ``has`` bits: 1 a field is given, 2 a rate is given;
-    q_out (S, N, 4), x_out (S, N, K), flags_out (S, N) uint16 filled. The clock is shared,
-    so it is read once; then each sensor runs through its samples on its own.
+    q_out (S, N, 4), x_out (S, N, K), flags_out (S, N) uint16 filled; each sensor runs
+    through its samples on its own. The body of a method's ``series``, compiled without
+    numba's reference counting (``_nrt=False``): with it, every array a sample passes on
+    (the row, the output rows ``q_out[i]``, ``x_out[i]``) is counted in and out, a dozen
+    atomic calls per sample, 5-10 % of a Kalman filter's step.
     """
     scoef, coef = coefs[:N_SCOEF], coefs[N_SCOEF:]
     has_mag, has_gyr = (has & 1) != 0, (has & 2) != 0
-    dts, ks, tflags = _clock_series(clock, scoef[screen.C_MAX_GAP], t)
     for s in range(rows.shape[0]):
         _sensor_series(start, step, hold, rows[s], coef, scoef, dts, ks, tflags, gyr[s], acc[s],
                        mag[s], has_mag, has_gyr, q_out[s], x_out[s], flags_out[s])
+
+
+@njit(cache=True, inline="always")
+def run_series(series_kernel, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
+               flags_out):
+    """S sensors' N samples with common timestamps ``t`` (N,) s; ``clock`` (1,) in/out.
+
+    The clock is shared, so it is read once (:func:`_clock_series`); then
+    ``series_kernel`` (a method's ``series``: :func:`series` with its functions) runs the
+    sensors; the other arguments as :func:`series` takes them.
+    """
+    dts, ks, tflags = _clock_series(clock, coefs[screen.C_MAX_GAP], t)
+    series_kernel(rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out)
 
 
 @njit(cache=True, inline="always")

@@ -234,6 +234,7 @@ __all__ = [
     "process_noise",
     "run",
     "sample",
+    "series",
     "start",
     "start_n",
     "step_n",
@@ -261,11 +262,18 @@ def _hold(row, coef, x_out):
     hold_n(row, coef, x_out, N)
 
 
+@njit(cache=True, nogil=True, _nrt=False)
+def series(rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """S sensors' N samples on the shared clock's values (``contract.series``)."""
+    contract.series(_start, _step, _hold, rows, coefs, dts, ks, tflags, gyr, acc, mag,
+                    has, q_out, x_out, flags_out)
+
+
 @njit(cache=True, nogil=True)
 def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples (``contract.run_series``)."""
-    contract.run_series(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
-                        q_out, x_out, flags_out)
+    """S sensors' N samples (``contract.run_series`` with :func:`series`)."""
+    contract.run_series(series, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
+                        flags_out)
 
 
 @njit(cache=True)

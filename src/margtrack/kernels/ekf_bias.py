@@ -40,7 +40,9 @@ X_BIAS = X_NULL + 3  # 3
 X_BIAS_SD = X_BIAS + 3  # 3
 N_OUT = X_BIAS_SD + 3
 
-__all__ = ["E_BIAS", "E_BIAS_SD", "E_P", "E_X", "N_ROW", "run", "start", "update", "update_one"]
+__all__ = [
+    "E_BIAS", "E_BIAS_SD", "E_P", "E_X", "N_ROW", "run", "series", "start", "update", "update_one",
+]
 
 
 @njit(cache=True, inline="always")
@@ -60,11 +62,18 @@ def _hold(row, coef, x_out):
     hold_n(row, coef, x_out, N)
 
 
+@njit(cache=True, nogil=True, _nrt=False)
+def series(rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """S sensors' N samples on the shared clock's values (``contract.series``)."""
+    contract.series(_start, _step, _hold, rows, coefs, dts, ks, tflags, gyr, acc, mag,
+                    has, q_out, x_out, flags_out)
+
+
 @njit(cache=True, nogil=True)
 def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples (``contract.run_series``)."""
-    contract.run_series(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
-                        q_out, x_out, flags_out)
+    """S sensors' N samples (``contract.run_series`` with :func:`series`)."""
+    contract.run_series(series, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
+                        flags_out)
 
 
 @njit(cache=True)

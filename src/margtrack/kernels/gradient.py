@@ -301,12 +301,19 @@ def _has(coefs, has):
     return has if coefs[contract.N_SCOEF + C_USE_MAG] > 0.5 else has & ~1
 
 
+@njit(cache=True, nogil=True, _nrt=False)
+def series(rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """S sensors' N samples on the shared clock's values (``contract.series``)."""
+    contract.series(_start, _step_lean, _hold_lean, rows, coefs, dts, ks, tflags, gyr, acc, mag,
+                    _has(coefs, has), q_out, x_out, flags_out)
+
+
 @njit(cache=True, nogil=True)
 def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples (``contract.run_series``); x_out (S, N, N_LEAN) for
-    :func:`expand`."""
-    contract.run_series(_start, _step_lean, _hold_lean, rows, clock, coefs, t, gyr, acc, mag,
-                        _has(coefs, has), q_out, x_out, flags_out)
+    """S sensors' N samples (``contract.run_series`` with :func:`series`); x_out
+    (S, N, N_LEAN) for :func:`expand`."""
+    contract.run_series(series, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
+                        flags_out)
 
 
 @njit(cache=True, error_model="numpy", _nrt=False, vector_width=contract_lanes.VECTOR_WIDTH)

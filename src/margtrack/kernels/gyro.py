@@ -35,11 +35,18 @@ def _hold(row, coef, x_out):
     """Nothing to write: plain integration has no extra outputs."""
 
 
+@njit(cache=True, nogil=True, _nrt=False)
+def series(rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """S sensors' N samples on the shared clock's values (``contract.series``)."""
+    contract.series(_start, _step, _hold, rows, coefs, dts, ks, tflags, gyr, acc, mag,
+                    has, q_out, x_out, flags_out)
+
+
 @njit(cache=True, nogil=True)
 def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples (``contract.run_series``)."""
-    contract.run_series(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has,
-                        q_out, x_out, flags_out)
+    """S sensors' N samples (``contract.run_series`` with :func:`series`)."""
+    contract.run_series(series, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
+                        flags_out)
 
 
 @njit(cache=True)

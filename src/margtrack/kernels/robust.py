@@ -153,12 +153,18 @@ def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     return not ready
 
 
+@njit(cache=True, nogil=True, _nrt=False)
+def series(rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """S sensors' N samples on the shared clock's values (``contract.series``)."""
+    contract.series(_start, _step, _hold, rows, coefs, dts, ks, tflags, gyr, acc, mag,
+                    has, q_out, x_out, flags_out)
+
+
 @njit(cache=True, nogil=True)
 def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples (``contract.run_series``)."""
-    contract.run_series(
-        _start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out
-    )
+    """S sensors' N samples (``contract.run_series`` with :func:`series`)."""
+    contract.run_series(series, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
+                        flags_out)
 
 
 @njit(cache=True, error_model="numpy", _nrt=False, vector_width=contract_lanes.VECTOR_WIDTH)
