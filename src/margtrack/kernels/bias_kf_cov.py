@@ -162,26 +162,27 @@ def predict(row, p0, s0, h, qw, qx, qy, qz, tx, ty, tz, xi0, xi1, xi2, walk0, wa
 
 
 @njit(cache=True, inline="always")
+def _quadratic(p00, p01, p02, p03, p11, p12, p13, p22, p23, p33, a0, a1, a2, a3):
+    """``aᵀ P a`` of a symmetric 4 x 4 ``P`` from its upper triangle."""
+    return (p00 * a0 * a0 + p11 * a1 * a1 + p22 * a2 * a2 + p33 * a3 * a3
+            + 2.0 * (a0 * (p01 * a1 + p02 * a2 + p03 * a3) + a1 * (p12 * a2 + p13 * a3)
+                     + p23 * a2 * a3))
+
+
+@njit(cache=True, inline="always")
 def tilt_variance(row, p0, qw, qx, qy, qz, vw, vx, vy, vz):
     """``½ (tr P_θ - ẑᵀ P_θ ẑ)``, the state's tilt variance per axis normal to ``ẑ``, rad².
 
     ``P_θ = 4 Q̃ᵀ P_qq Q̃`` the body angle covariance, ``v = Q̃ ẑ`` (``ẑ`` unit body up);
-    computed as ``2 (tr P_qq - qᵀ P_qq q - vᵀ P_qq v)`` (``Q̃ Q̃ᵀ = I - qqᵀ``).
+    computed as ``2 (tr P_qq - qᵀ P_qq q - vᵀ P_qq v)`` (``Q̃ Q̃ᵀ = I - qqᵀ``), from
+    ``P_qq``'s upper triangle.
     """
-    qpq, vpv = 0.0, 0.0
-    for i in range(4):
-        qi = qw if i == 0 else (qx if i == 1 else (qy if i == 2 else qz))
-        vi = vw if i == 0 else (vx if i == 1 else (vy if i == 2 else vz))
-        pq, pv = 0.0, 0.0
-        for j in range(4):
-            qj = qw if j == 0 else (qx if j == 1 else (qy if j == 2 else qz))
-            vj = vw if j == 0 else (vx if j == 1 else (vy if j == 2 else vz))
-            pq += row[p0 + 7 * i + j] * qj
-            pv += row[p0 + 7 * i + j] * vj
-        qpq += qi * pq
-        vpv += vi * pv
-    trace = row[p0] + row[p0 + 8] + row[p0 + 16] + row[p0 + 24]
-    return 2.0 * (trace - qpq - vpv)
+    p00, p01, p02, p03 = row[p0], row[p0 + 1], row[p0 + 2], row[p0 + 3]
+    p11, p12, p13 = row[p0 + 8], row[p0 + 9], row[p0 + 10]
+    p22, p23, p33 = row[p0 + 16], row[p0 + 17], row[p0 + 24]
+    qpq = _quadratic(p00, p01, p02, p03, p11, p12, p13, p22, p23, p33, qw, qx, qy, qz)
+    vpv = _quadratic(p00, p01, p02, p03, p11, p12, p13, p22, p23, p33, vw, vx, vy, vz)
+    return 2.0 * (p00 + p11 + p22 + p33 - qpq - vpv)
 
 
 @njit(cache=True, inline="always")

@@ -160,7 +160,7 @@ def _triad(ax, ay, az, mx, my, mz, up, north):
     return triad_at(ax, ay, az, mx, my, mz, up[0], up[1], up[2], north[0], north[1], north[2])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _up_in_body(w, x, y, z, ux, uy, uz):
     """``R(q)ᵀ u``: the earth vector ``u`` in body coordinates (``q`` body to earth)."""
     return (
@@ -173,7 +173,7 @@ def _up_in_body(w, x, y, z, ux, uy, uz):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _tilt_rotation(ax, ay, az, zx, zy, zz, fx, fy, fz):
     """Shortest rotation ``r`` taking the unit ``â`` to the unit ``ẑ`` (body frame), [w, x, y, z].
 
@@ -360,7 +360,7 @@ def _gate_weight(ratio, exponent):
     return ratio**exponent
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _acc_variance(white_g, corr_a, acc_norm_corr_s, na, g_abs):
     """``σ_G²`` of the unit gravity direction (eqs. 41-43, ``acc_norm_correlation_s``).
 
@@ -373,7 +373,7 @@ def _acc_variance(white_g, corr_a, acc_norm_corr_s, na, g_abs):
     return var_g
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _mag_variance(white_n, h, nm, sin_dip, ref_norm, ref_sin_dip, norm_corr_s, dip_corr_s):
     """``σ_N²`` of the unit field direction (eq. 44 and the disturbance terms).
 

@@ -94,7 +94,7 @@ _MAG_IGNORED = 32
 _MAG_DISTURBED = 64
 
 
-@njit(cache=True, fastmath={"contract"})
+@njit(cache=True, fastmath={"contract"}, _nrt=False)
 def filter_step(row, coef, h, gx, gy, gz, acx, acy, acz, mgx, mgy, mgz):
     """One sample of one sensor's filter, in place on its ``row``; returns (code, disturbed).
 
@@ -107,7 +107,10 @@ def filter_step(row, coef, h, gx, gy, gz, acx, acy, acz, mgx, mgy, mgz):
     farther than the tolerances from the reference (the first field sample's; it is still
     used, with the variance of the disturbance terms). Never NaN for finite input.
     Compiled with floating-point contraction only (``a * b + c`` fused): every entry point
-    and thread calls this one compiled function, so they agree to the last bit.
+    and thread calls this one compiled function, so they agree to the last bit; and without
+    reference counting, whichever caller compiles it first (numba's callees otherwise take
+    the caller's setting, and the first compilation serves all): the partial updates it
+    calls, which make views of the row, are compiled with theirs.
     """
     tilt_gate = coef[C_TILT_GATE]
     qw, qx, qy, qz = row[Q], row[Q + 1], row[Q + 2], row[Q + 3]
