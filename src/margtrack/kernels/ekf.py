@@ -86,9 +86,10 @@ contract's slots (offsets ``E_*``, the same for both sizes up to ``E_X``):
   given); ``E_FIELD`` (3) the unit field reference from it; ``E_MAG_NORM`` the field's
   reference norm of the evidence-driven noise (``mag_disturbance_s``; 0: none yet);
 - ``E_NULL`` (``rest_null.N_REST_NULL``) the gyro null from the still start;
-- ``E_DT``, ``E_GEN``, ``E_K`` (18): the interval-dependent constants (per axis ``a``,
-  ``c``, Var Δω, Cov(Δφ, Δω), Var Δφ, the bias increment's variance) of the interval
-  ``E_DT`` and the coefficient generation ``E_GEN`` they were computed for: recomputed
+- ``E_DT``, ``E_GEN``, ``E_K`` (19): the interval-dependent constants (per axis ``a``,
+  ``c``, Var Δω, Cov(Δφ, Δω), Var Δφ, the bias increment's variance; the field reference's
+  gain) of the interval ``E_DT`` and the coefficient generation ``E_GEN`` they were
+  computed for: recomputed
   only when the generation changes or the interval moves by more than ``DT_REUSE_REL``
   (relative; timestamps' rounding moves it at every sample);
 - ``E_X`` (n) the state ``[ω, q(, b)]`` (q body to earth in the output frame, any

@@ -78,8 +78,8 @@ E_MAG_NORM = E_FIELD + 3  # the field's reference norm (mag_disturbance_s; 0: no
 E_NULL = E_MAG_NORM + 1  # rest_null.N_REST_NULL: the gyro null from the still start
 E_DT = E_NULL + rest_null.N_REST_NULL  # interval of the constants below, s (NaN: none)
 E_GEN = E_DT + 1  # coefficient generation they were computed with
-E_K = E_GEN + 1  # 18: a, c, Var Δω, Cov(Δφ, Δω), Var Δφ, σ_b² h (3 each)
-E_X = E_K + 18  # n: [ω (rad/s), q(, b (rad/s))]
+E_K = E_GEN + 1  # 19: a, c, Var Δω, Cov(Δφ, Δω), Var Δφ, σ_b² h (3 each), field gain
+E_X = E_K + 19  # n: [ω (rad/s), q(, b (rad/s))]
 N = 7  # this module's state size
 E_P = E_X + N  # 49: covariance, row-major
 E_PH = E_P + N * N  # 7: scratch of an update
@@ -194,6 +194,7 @@ def _constants(row, coef, h):
             vw, cpw, vp = axis_noise(h, tau, coef[C_RATE_VAR + k])
             row[E_K + 6 + k], row[E_K + 9 + k], row[E_K + 12 + k] = vw, cpw, vp
             row[E_K + 15 + k] = coef[C_BIAS_WALK_VAR + k] * h
+        row[E_K + 18] = -math.expm1(-h / REF_TAU_S)  # the field reference's gain
         row[E_DT] = h
         row[E_GEN] = coef[C_GEN]
 
@@ -243,13 +244,13 @@ def _gyro_update(row, coef, n, rate, k, ih):
 @njit(cache=True, inline="always")
 def _field_share(row, coef, h, ih, norm):
     """The field's disturbance share against the reference norm ``E_MAG_NORM``, which then
-    follows the field slowly (the screening's time constant, ``screen.REF_TAU_S``); the
-    first usable field sets it."""
+    follows the field slowly (the screening's time constant, ``screen.REF_TAU_S``, its gain
+    among the interval's constants); the first usable field sets it."""
     ref = row[E_MAG_NORM]
     if not ref > 0.0:
         row[E_MAG_NORM] = norm
         return 0.0
-    row[E_MAG_NORM] = ref - math.expm1(-h / REF_TAU_S) * (norm - ref)
+    row[E_MAG_NORM] = ref + row[E_K + 18] * (norm - ref)  # (_constants: -expm1(-h/τ))
     return disturbance_share(norm, ref, coef[C_MAG_DIST_S], ih)
 
 

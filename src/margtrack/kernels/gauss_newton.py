@@ -108,16 +108,19 @@ def _solve_symmetric(a00, a01, a02, a03, a11, a12, a13, a22, a23, a33, b0, b1, b
     d0 = a00
     if not abs(d0) > tiny:
         return False, 0.0, 0.0, 0.0, 0.0
-    l10, l20, l30 = a01 / d0, a02 / d0, a03 / d0
+    r0 = 1.0 / d0  # each pivot's reciprocal: 4 divisions, not 10
+    l10, l20, l30 = a01 * r0, a02 * r0, a03 * r0
     d1 = a11 - l10 * l10 * d0
     if not abs(d1) > tiny:
         return False, 0.0, 0.0, 0.0, 0.0
-    l21 = (a12 - l20 * l10 * d0) / d1
-    l31 = (a13 - l30 * l10 * d0) / d1
+    r1 = 1.0 / d1
+    l21 = (a12 - l20 * l10 * d0) * r1
+    l31 = (a13 - l30 * l10 * d0) * r1
     d2 = a22 - l20 * l20 * d0 - l21 * l21 * d1
     if not abs(d2) > tiny:
         return False, 0.0, 0.0, 0.0, 0.0
-    l32 = (a23 - l30 * l20 * d0 - l31 * l21 * d1) / d2
+    r2 = 1.0 / d2
+    l32 = (a23 - l30 * l20 * d0 - l31 * l21 * d1) * r2
     d3 = a33 - l30 * l30 * d0 - l31 * l31 * d1 - l32 * l32 * d2
     if not abs(d3) > tiny:
         return False, 0.0, 0.0, 0.0, 0.0
@@ -126,9 +129,9 @@ def _solve_symmetric(a00, a01, a02, a03, a11, a12, a13, a22, a23, a33, b0, b1, b
     y2 = b2 - l20 * y0 - l21 * y1
     y3 = b3 - l30 * y0 - l31 * y1 - l32 * y2
     x3 = y3 / d3
-    x2 = y2 / d2 - l32 * x3
-    x1 = y1 / d1 - l21 * x2 - l31 * x3
-    x0 = y0 / d0 - l10 * x1 - l20 * x2 - l30 * x3
+    x2 = y2 * r2 - l32 * x3
+    x1 = y1 * r1 - l21 * x2 - l31 * x3
+    x0 = y0 * r0 - l10 * x1 - l20 * x2 - l30 * x3
     return True, x0, x1, x2, x3
 
 
