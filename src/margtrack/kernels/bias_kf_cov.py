@@ -57,6 +57,13 @@ N_SCRATCH = F_DX + 7
 
 
 @njit(cache=True, inline="always")
+def _component(k, c0, c1, c2, c3):
+    """Component k of the 4-vector (c0, c1, c2, c3) (k a loop index over 0-3: unrolled,
+    the selection folds away)."""
+    return c0 if k == 0 else (c1 if k == 1 else (c2 if k == 2 else c3))
+
+
+@njit(cache=True, inline="always")
 def _half_angle(angle2):
     """``(cos(|Θ|/2), sin(|Θ|/2)/|Θ|)`` of ``|Θ|² = angle2`` rad² (003 eq. 27).
 
@@ -136,9 +143,9 @@ def predict(row, p0, s0, h, qw, qx, qy, qz, tx, ty, tz, xi0, xi1, xi2, walk0, wa
     along = min((tr * tr + 2.0 * (xi0 * xi0 + xi1 * xi1 + xi2 * xi2)) / 64.0, 1.0)
     q0, q1, q2, q3 = qw, qx, qy, qz
     for i in range(4):  # P_qq = Φ_Q X Φ_Qᵀ + W
-        qi = q0 if i == 0 else (q1 if i == 1 else (q2 if i == 2 else q3))
+        qi = _component(i, q0, q1, q2, q3)
         for j in range(i, 4):
-            qj = q0 if j == 0 else (q1 if j == 1 else (q2 if j == 2 else q3))
+            qj = _component(j, q0, q1, q2, q3)
             acc = 0.0
             for k in range(4):
                 acc += row[y + 4 * i + k] * row[f + 4 * j + k]
@@ -227,11 +234,11 @@ def decoupled_noise(row, v0, qw, qx, qy, qz, vw, vx, vy, vz, var_g, var_h):
     cv = 0.25 * (var_h - var_g)
     cq = 1.0 - cg
     for i in range(4):
-        qi = qw if i == 0 else (qx if i == 1 else (qy if i == 2 else qz))
-        vi = vw if i == 0 else (vx if i == 1 else (vy if i == 2 else vz))
+        qi = _component(i, qw, qx, qy, qz)
+        vi = _component(i, vw, vx, vy, vz)
         for j in range(i, 4):
-            qj = qw if j == 0 else (qx if j == 1 else (qy if j == 2 else qz))
-            vj = vw if j == 0 else (vx if j == 1 else (vy if j == 2 else vz))
+            qj = _component(j, qw, qx, qy, qz)
+            vj = _component(j, vw, vx, vy, vz)
             value = cq * qi * qj + cv * vi * vj + (cg if i == j else 0.0)
             row[v0 + 4 * i + j] = value
             row[v0 + 4 * j + i] = value
@@ -258,13 +265,13 @@ def triad_noise(row, v0, qw, qx, qy, qz, zx, zy, zz, nx, ny, nz, var_g, var_n):
     vw, vx, vy, vz = body_direction(qw, qx, qy, qz, zx, zy, zz)
     uw, ux, uy, uz = body_direction(qw, qx, qy, qz, nx, ny, nz)
     for i in range(4):
-        qi = qw if i == 0 else (qx if i == 1 else (qy if i == 2 else qz))
-        vi = vw if i == 0 else (vx if i == 1 else (vy if i == 2 else vz))
-        ui = uw if i == 0 else (ux if i == 1 else (uy if i == 2 else uz))
+        qi = _component(i, qw, qx, qy, qz)
+        vi = _component(i, vw, vx, vy, vz)
+        ui = _component(i, uw, ux, uy, uz)
         for j in range(i, 4):
-            qj = qw if j == 0 else (qx if j == 1 else (qy if j == 2 else qz))
-            vj = vw if j == 0 else (vx if j == 1 else (vy if j == 2 else vz))
-            uj = uw if j == 0 else (ux if j == 1 else (uy if j == 2 else uz))
+            qj = _component(j, qw, qx, qy, qz)
+            vj = _component(j, vw, vx, vy, vz)
+            uj = _component(j, uw, ux, uy, uz)
             value = (cq * qi * qj + ca * vi * vj + cb * (vi * uj + ui * vj)
                      + (cg if i == j else 0.0))
             row[v0 + 4 * i + j] = value
@@ -300,7 +307,7 @@ def kalman_update(row, p0, s0, v0, n0, n1, n2, n3):
         row[inv + r] = 1.0 / d
     z = s0 + F_Z  # L z = ν (L unit lower)
     for k in range(4):
-        acc = n0 if k == 0 else (n1 if k == 1 else (n2 if k == 2 else n3))
+        acc = _component(k, n0, n1, n2, n3)
         for j in range(k):
             acc -= row[lo + 4 * k + j] * row[z + j]
         row[z + k] = acc
