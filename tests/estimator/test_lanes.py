@@ -16,7 +16,9 @@ import pytest
 
 from margtrack import io, methods, sim
 from margtrack.estimator import compiled, sensor_threads
-from margtrack.kernels import contract_lanes, jit
+from margtrack.kernels import contract_lanes, jit, screen
+from margtrack.kernels.contract import K_READY, K_SCREEN, N_CONTRACT, N_SCOEF
+from margtrack.kernels.jit import njit
 
 LOCKSTEP = ["gradient", "bachmann", "robust"]
 #: one full block and a partial one, so lanes at both ends of a block are checked
@@ -195,3 +197,75 @@ def _options(kernel):
         if kernel is lazy or kernel is lazy.dispatcher:
             return lazy.options
     raise LookupError(kernel)
+
+
+@njit(inline="always")
+def _null_start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
+    pass
+
+
+@njit(inline="always")
+def _null_step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, qa, qo,
+                  xa, xo, outs, steady):
+    qa[qo], qa[qo + outs], qa[qo + 2 * outs], qa[qo + 3 * outs] = g0 + a0, g1 + a1, m0 + m2, dt
+    return 0
+
+
+@njit(inline="always")
+def _null_hold_at(st, o, lanes, coef, xa, xo, outs):
+    pass
+
+
+@njit(inline="always")
+def _null_rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
+    return False
+
+
+def _null_block(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
+                flags_out):
+    scoef = jit.to_fixed_tuple(coefs, N_SCOEF)
+    contract_lanes.block(_null_start_at, _null_step_at, _null_hold_at, _null_rare_at,
+                         N_CONTRACT, 0, st, rows, s0, scoef, scoef, dts, ks, tflags, gyr, acc,
+                         mag, has, q_out, x_out, flags_out)
+
+
+@pytest.mark.kernel
+@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"),
+                    reason="numba's JIT is off: nothing is compiled, so nothing vectorised")
+def test_lockstep_screening_stores_unmasked():
+    """The framework and the screening of a lockstep block store the state unconditionally
+    (new or old value: ``jit.select``), whether the method reads a field or not: no masked
+    store, slow on AMD's cores. A method with a trivial step, on faulty sensors: its
+    screened samples are those of the screening run sensor by sensor."""
+    options = {k: v for k, v in _options(methods.get("gradient").kernel.lanes_block).items()
+               if k != "cache"}
+    block = jit._dispatcher(numba, jit.LazyKernel(_null_block, options))
+    t, gyr, acc, mag = _faulty_sensors(n_sensors=contract_lanes.LANES)
+    dts, tflags = np.empty(t.size), np.empty(t.size, np.int64)
+    screen.screen_time(t, np.nan, 0.5, dts, tflags)
+    ks = np.array([screen.ref_gain(d) for d in dts])
+    coefs = methods.create("gradient")._coefs[:N_SCOEF]
+    for has in (3, 2):  # with and without a field
+        rows = np.zeros((gyr.shape[0], N_CONTRACT))
+        screen.fresh(rows[:, K_SCREEN:])
+        rows[:, K_READY] = 1.0  # started: no TRIAD start, every sample through the step
+        q = np.empty((gyr.shape[0], t.size, 4))
+        flags = np.empty((gyr.shape[0], t.size), np.uint16)
+        block(np.empty((N_CONTRACT + contract_lanes.N_B) * contract_lanes.LANES), rows, 0,
+              coefs, dts, ks, tflags, gyr, acc, mag, has, q, np.empty((gyr.shape[0], t.size, 0)),
+              flags)
+        sc = np.empty((gyr.shape[0], screen.N_SCREEN))
+        screen.fresh(sc)
+        outs = [np.empty_like(gyr) for _ in range(3)]
+        alone_flags = np.empty(flags.shape, np.uint16)
+        screen.screen_samples(coefs, dts, tflags, gyr, acc, mag, has & 1 != 0, True, sc, *outs,
+                              alone_flags)
+        g, a, m = outs
+        gaps = (tflags & screen.GAP) != 0  # a gap unreadies every lane: the step is skipped
+        np.testing.assert_array_equal(q[:, ~gaps, 0], (g[..., 0] + a[..., 0])[:, ~gaps])
+        np.testing.assert_array_equal(q[:, ~gaps, 2], (m[..., 0] + m[..., 2])[:, ~gaps])
+        np.testing.assert_array_equal(flags[:, ~gaps], alone_flags[:, ~gaps])
+        np.testing.assert_array_equal(rows[:, K_SCREEN:], sc)
+    llvm_ir = block.inspect_llvm(block.signatures[0])
+    assert llvm_ir.count("<8 x double>") > 100  # vectorised
+    assert "llvm.masked.store" not in llvm_ir

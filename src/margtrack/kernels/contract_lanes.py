@@ -2,11 +2,12 @@
 
 ``contract.run_series`` runs each sensor through all its samples in turn. Here a block of
 up to LANES sensors goes through the samples together. Their rows are interleaved in one
-flat buffer (row slot j of a lane at ``buf[j * LANES + lane]``), and one loop over the lanes
-runs a sample's screening and step for all of them. Every access is then a constant offset
-from the lane, so the compiler vectorises that loop across sensors. The results are those
-of ``contract.run_series`` bit for bit: each sensor gets the same arithmetic in the same
-order (a vector lane rounds as a scalar does, and the libm calls stay scalar calls).
+flat buffer (row slot j of a lane at ``buf[j * LANES + lane]``), and a loop over the lanes
+runs a sample's screening for all of them, another their steps. Every access is then a
+constant offset from the lane, so the compiler vectorises these loops across sensors. The
+results are those of ``contract.run_series`` bit for bit: each sensor gets the same
+arithmetic in the same order (a vector lane rounds as a scalar does, and no libm call is
+made in the vector loops: ``_fastmath``).
 
 A method provides its ``contract`` functions in strided form: the row's slot j at
 ``st[o + j * lanes]``, output k at ``xa[xo + k * outs]``:
@@ -18,12 +19,17 @@ A method provides its ``contract`` functions in strided form: the row's slot j a
 - ``rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2)``: whether this
   sample (as screened) takes a rare branch of the step (a call or a loop the vectoriser
   cannot take: Bachmann's heading set from the field, say). The vector pass calls
-  ``step_at`` with the constant ``steady=True`` for the other lanes, so the step leaves
-  those branches out of its code.
+  ``step_at`` with the constant ``steady=True``, so the step leaves those branches out of
+  its code.
 
-(Re)starts are rare (the first usable sample, after a gap) and call TRIAD: they, and the
-rare steps, run in a scalar pass over the lanes that need them, after the vector pass,
-with the sample as screened there, which is the order of ``contract._sample``.
+(Re)starts are rare (the first usable sample, after a gap) and call TRIAD. When a lane of
+the block (re)starts or its step takes a rare branch, that sample's steps of the whole
+block run in scalar code (``steady=False``, the same results for the other lanes), with
+the sample as screened, which is the order of ``contract._sample``. Otherwise every lane
+steps in the vector loop, none left out: a lane left out makes each store of the step a
+masked store, slow on AMD's cores (Zen 3: 8-15 % of a block's time), and the screening's
+stores are unconditional too (``jit.select``), also for a value the same for all lanes
+(``has_mag``).
 
 Entry points using these must be compiled with ``error_model="numpy"``. Under numba's
 default a float division checks its divisor and may raise: a branch the vectoriser cannot
@@ -36,7 +42,7 @@ import numpy as np
 
 from margtrack.kernels import contract, screen
 from margtrack.kernels.contract import INITIALISING, K_Q, K_READY, K_SCREEN, K_STARTS
-from margtrack.kernels.jit import njit
+from margtrack.kernels.jit import njit, select
 
 #: sensors per block: 4 AVX-512 vectors; a block's buffer (about 70 slots) stays in L1
 LANES = 32
@@ -59,9 +65,9 @@ STEP = 2.0  # the lane's step takes a rare branch
 
 
 @njit(cache=True, inline="always")
-def _lane(step_at, rare_at, st, o, n_row, coef, scoef, dt, k_ref, tflags, has_mag, has_gyr):
-    """One lane's sample (the vector pass): screen, then step unless it (re)starts or its
-    step takes a rare branch (left to the scalar pass)."""
+def _screen_lane(rare_at, st, o, n_row, coef, scoef, dt, k_ref, tflags, has_mag, has_gyr):
+    """A lane's sample, first part (the vector pass): screen it in place, and note whether
+    its step needs the scalar pass (it (re)starts, or takes a rare branch)."""
     lanes = LANES
     i_in = o + (n_row + B_GYR) * lanes
     f, g0, g1, g2, a0, a1, a2, m0, m1, m2 = screen.screen_at(
@@ -73,28 +79,34 @@ def _lane(step_at, rare_at, st, o, n_row, coef, scoef, dt, k_ref, tflags, has_ma
     st[i_in], st[i_in + lanes], st[i_in + 2 * lanes] = g0, g1, g2
     st[i_in + 3 * lanes], st[i_in + 4 * lanes], st[i_in + 5 * lanes] = a0, a1, a2
     st[i_in + 6 * lanes], st[i_in + 7 * lanes], st[i_in + 8 * lanes] = m0, m1, m2
-    if tflags & screen.GAP:
-        st[o + K_READY * lanes] = 0.0
-    scalar = RESTART
-    if st[o + K_READY * lanes] != 0.0:
-        rare = rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2)
-        scalar = STEP if rare else 0.0
-    i_q = o + (n_row + B_Q) * lanes
-    if scalar == 0.0:
-        f |= step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag,
-                     st, i_q, st, o + (n_row + B_X) * lanes, lanes, True)
-        # written out: a loop here, inside a branch, stops the vectoriser
-        i_last = o + K_Q * lanes
-        st[i_last], st[i_last + lanes] = st[i_q], st[i_q + lanes]
-        st[i_last + 2 * lanes], st[i_last + 3 * lanes] = st[i_q + 2 * lanes], st[i_q + 3 * lanes]
+    rare = rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2)
+    ready = st[o + K_READY * lanes] != 0.0
     st[o + (n_row + B_FLAGS) * lanes] = f
-    st[o + (n_row + B_SCALAR) * lanes] = scalar
+    st[o + (n_row + B_SCALAR) * lanes] = select(ready, select(rare, STEP, 0.0), RESTART)
+
+
+@njit(cache=True, inline="always")
+def _step_lane(step_at, st, o, n_row, coef, dt, has_mag):
+    """A lane's sample, second part (the vector pass, when no lane of the block needs the
+    scalar pass): the step, on the sample as screened."""
+    lanes = LANES
+    i_in = o + (n_row + B_GYR) * lanes
+    i_q, i_f = o + (n_row + B_Q) * lanes, o + (n_row + B_FLAGS) * lanes
+    f = step_at(st, o, lanes, coef, dt, st[i_in], st[i_in + lanes], st[i_in + 2 * lanes],
+                st[i_in + 3 * lanes], st[i_in + 4 * lanes], st[i_in + 5 * lanes],
+                st[i_in + 6 * lanes], st[i_in + 7 * lanes], st[i_in + 8 * lanes], has_mag,
+                st, i_q, st, o + (n_row + B_X) * lanes, lanes, True)
+    st[i_f] = int(st[i_f]) | f
+    i_last = o + K_Q * lanes
+    st[i_last], st[i_last + lanes] = st[i_q], st[i_q + lanes]
+    st[i_last + 2 * lanes], st[i_last + 3 * lanes] = st[i_q + 2 * lanes], st[i_q + 3 * lanes]
 
 
 @njit(cache=True, inline="always")
 def _scalar(start_at, step_at, hold_at, st, o, n_row, coef, scoef, dt, has_mag):
-    """The rest of a lane's sample when it (re)starts or its step takes a rare branch (the
-    scalar pass; ``contract._sample``)."""
+    """The rest of a lane's sample in the scalar pass (``contract._sample``): its (re)start
+    if it has one, and its step (the same results as :func:`_step_lane`'s, rare branches
+    included)."""
     lanes = LANES
     i_in = o + (n_row + B_GYR) * lanes
     g0, g1, g2 = st[i_in], st[i_in + lanes], st[i_in + 2 * lanes]
@@ -145,27 +157,40 @@ def block(start_at, step_at, hold_at, rare_at, n_row, n_x, st, rows, s0, scoef, 
     i_in = (n_row + B_GYR) * lanes
     i_q, i_x, i_f = (n_row + B_Q) * lanes, (n_row + B_X) * lanes, (n_row + B_FLAGS) * lanes
     i_scalar = (n_row + B_SCALAR) * lanes
+    n_x_out = x_out.shape[2]  # at most n_x
     for i in range(dts.shape[0]):
         dt, k_ref, tf = dts[i], ks[i], tflags[i]
+        # unsigned indices: numba adds no wraparound for a negative index to them
+        iu = np.uint64(i)
         for lane in range(n):
-            s = s0 + lane
+            su, lu = np.uint64(s0 + lane), np.uint64(lane)
             for c in range(3):
-                st[i_in + c * lanes + lane] = gyr[s, i, c]
-                st[i_in + (3 + c) * lanes + lane] = acc[s, i, c]
-                st[i_in + (6 + c) * lanes + lane] = mag[s, i, c]
+                cu = np.uint64(c)
+                st[np.uint64(i_in + c * lanes) + lu] = gyr[su, iu, cu]
+                st[np.uint64(i_in + (3 + c) * lanes) + lu] = acc[su, iu, cu]
+                st[np.uint64(i_in + (6 + c) * lanes) + lu] = mag[su, iu, cu]
+        if tf & screen.GAP:
+            for lane in range(n):
+                st[K_READY * lanes + lane] = 0.0
         for lane in range(n):  # vectorised across the lanes
-            _lane(step_at, rare_at, st, lane, n_row, coef, scoef, dt, k_ref, tf, has_mag,
-                  has_gyr)
+            _screen_lane(rare_at, st, lane, n_row, coef, scoef, dt, k_ref, tf, has_mag,
+                         has_gyr)
+        scalar = 0.0
         for lane in range(n):
-            if st[i_scalar + lane] != 0.0:
+            scalar += st[i_scalar + lane]
+        if scalar == 0.0:
+            for lane in range(n):  # vectorised, no lane left out (no masked stores)
+                _step_lane(step_at, st, lane, n_row, coef, dt, has_mag)
+        else:  # a lane (re)starts or takes a rare branch: the block's sample in scalar code
+            for lane in range(n):
                 _scalar(start_at, step_at, hold_at, st, lane, n_row, coef, scoef, dt, has_mag)
         for lane in range(n):
-            s = s0 + lane
-            flags_out[s, i] = int(st[i_f + lane])
+            su, lu = np.uint64(s0 + lane), np.uint64(lane)
+            flags_out[su, iu] = int(st[np.uint64(i_f) + lu])
             for k in range(4):
-                q_out[s, i, k] = st[i_q + k * lanes + lane]
-            for k in range(x_out.shape[2]):  # at most n_x
-                x_out[s, i, k] = st[i_x + k * lanes + lane]
+                q_out[su, iu, np.uint64(k)] = st[np.uint64(i_q + k * lanes) + lu]
+            for k in range(n_x_out):
+                x_out[su, iu, np.uint64(k)] = st[np.uint64(i_x + k * lanes) + lu]
     for lane in range(n):
         for j in range(n_row):
             rows[s0 + lane, j] = st[j * lanes + lane]

@@ -1,16 +1,17 @@
-"""numba's ``njit``, ``literally``, ``to_fixed_tuple``; numba imported when a kernel first runs.
+"""numba's ``njit``, ``literally``, ``to_fixed_tuple``, and ``select``; numba imported when a
+kernel first runs.
 
-Kernel modules take ``njit``, ``literally`` and ``to_fixed_tuple`` from here instead of from
-numba. Importing numba and loading its registries costs about half a second in every new process,
-whatever the kernel, so a kernel defined here is a :class:`LazyKernel` until it is first
-called from Python. That call
+Kernel modules take ``njit``, ``literally``, ``to_fixed_tuple`` and ``select`` from here
+instead of from numba. Importing numba and loading its registries costs about half a second
+in every new process, whatever the kernel, so a kernel defined here is a :class:`LazyKernel`
+until it is first called from Python. That call
 
 1. runs an ahead-of-time build of the kernel when one matches its argument types
    (:mod:`margtrack.kernels.aot`; numba is then never imported), or else
 2. imports numba once and turns *every* kernel defined so far into a real numba dispatcher
    (same options, same ``cache=True`` files), rebinding the module globals that name a
-   kernel, ``literally`` or ``to_fixed_tuple``, so kernels calling kernels compile exactly as
-   before. Kernels defined after that are numba dispatchers from the start.
+   kernel, ``literally``, ``to_fixed_tuple`` or ``select``, so kernels calling kernels compile
+   exactly as before. Kernels defined after that are numba dispatchers from the start.
 
 The registry of kernels is process-wide by nature (numba's own dispatchers are too).
 """
@@ -27,7 +28,7 @@ from typing import Any
 
 __all__ = [
     "LazyKernel", "dispatcher", "kernels", "literally", "njit", "numba_loaded", "on_numba_load",
-    "resolve_all", "to_fixed_tuple",
+    "resolve_all", "select", "to_fixed_tuple",
 ]
 
 
@@ -51,6 +52,16 @@ class _ToFixedTuplePlaceholder:
         return "to_fixed_tuple (numba not imported yet)"
 
 
+class _SelectPlaceholder:
+    """Stands for :func:`_select_intrinsic`'s ``select`` until numba is imported."""
+
+    def __call__(self, cond: bool, if_true: float, if_false: float) -> float:  # pure Python
+        return if_true if cond else if_false
+
+    def __repr__(self) -> str:
+        return "select (numba not imported yet)"
+
+
 #: ``literally(n)`` in a kernel compiles it once per constant value of n at its call sites
 #: (numba's literal dispatch): a size fixed at compile time without inlining the kernel
 literally: Any = _LiterallyPlaceholder()
@@ -58,6 +69,11 @@ literally: Any = _LiterallyPlaceholder()
 #: compiler keeps in registers (a vectorised loop need not check it against the arrays
 #: it writes, as it must an array's memory)
 to_fixed_tuple: Any = _ToFixedTuplePlaceholder()
+#: ``select(cond, if_true, if_false)``: ``if_true if cond else if_false`` for float64 values,
+#: compiled to one LLVM ``select``, not a branch. ``st[i] = select(ok, x, st[i])`` is then a
+#: store whatever ``ok``; written as a branch, LLVM drops the store of the value just
+#: loaded, and the store left in a branch is a masked store when vectorised (slow on AMD)
+select: Any = _SelectPlaceholder()
 
 _KERNELS: list[LazyKernel] = []  # every kernel defined, numba's or not yet
 _ON_LOAD: list[Callable[[], None]] = []
@@ -247,13 +263,43 @@ def resolve_all() -> None:
         placeholders = {
             _LiterallyPlaceholder: numba.literally,
             _ToFixedTuplePlaceholder: real_to_fixed_tuple,
+            _SelectPlaceholder: _select_intrinsic(),
         }
-        if numba.config.DISABLE_JIT:  # the kernels run as Python: numba's intrinsic cannot
+        if numba.config.DISABLE_JIT:  # the kernels run as Python: numba's intrinsics cannot
             del placeholders[_ToFixedTuplePlaceholder]
+            del placeholders[_SelectPlaceholder]
         _rebind(real, placeholders)
         for kernel in _KERNELS:
             kernel.dispatcher = real[id(kernel)]
         _NUMBA = numba
+
+
+def _select_intrinsic() -> Any:
+    """``select`` compiled: LLVM's ``select`` of two float64 values (an intrinsic, in a
+    function numba inlines, so Python can call it too)."""
+    import numba
+    from numba.core import types
+    from numba.extending import intrinsic
+
+    @intrinsic
+    def select_ir(typingctx: Any, cond: Any, if_true: Any, if_false: Any) -> Any:
+        if not (isinstance(cond, types.Boolean) and isinstance(if_true, types.Number)
+                and isinstance(if_false, types.Number)):
+            return None
+
+        def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+            c = context.cast(builder, args[0], cond, types.boolean)
+            a = context.cast(builder, args[1], if_true, types.float64)
+            b = context.cast(builder, args[2], if_false, types.float64)
+            return builder.select(c, a, b)
+
+        return types.float64(cond, if_true, if_false), codegen
+
+    @numba.njit(inline="always")
+    def select(cond: bool, if_true: float, if_false: float) -> float:
+        return select_ir(cond, if_true, if_false)
+
+    return select
 
 
 def kernels() -> list[LazyKernel]:
@@ -263,7 +309,7 @@ def kernels() -> list[LazyKernel]:
 
 def _rebind(real: dict[int, Any], placeholders: dict[type, Any]) -> None:
     """Point every module global naming a kernel (or a placeholder: ``literally``,
-    ``to_fixed_tuple``) at the real object."""
+    ``to_fixed_tuple``, ``select``) at the real object."""
     for module in list(sys.modules.values()):
         names = getattr(module, "__dict__", None)
         if not isinstance(names, dict):
