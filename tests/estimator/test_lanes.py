@@ -201,7 +201,7 @@ def _options(kernel):
 
 @njit(inline="always")
 def _null_start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
-    pass
+    """Nothing to set: the trivial method has no state of its own."""
 
 
 @njit(inline="always")
@@ -213,7 +213,7 @@ def _null_step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, ha
 
 @njit(inline="always")
 def _null_hold_at(st, o, lanes, coef, xa, xo, outs):
-    pass
+    """No extra outputs to hold."""
 
 
 @njit(inline="always")

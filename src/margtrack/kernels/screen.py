@@ -129,7 +129,7 @@ def _keep(st, i, live, value, lanes):
     """``st[i] = value`` if ``live``. In lockstep (``lanes > 1``, a constant) a store of the
     new or the old value whatever ``live`` (``jit.select``): a store in a branch is a masked
     store across lanes, slow on AMD's cores. One sensor alone keeps the branch, which its
-    serial chain runs faster (3-8 % of a method's time on one stream)."""
+    serial chain runs faster (selects there cost 3-6 % of a method's time on one stream)."""
     if lanes > 1:
         st[i] = select(live, value, st[i])
     elif live:
@@ -181,9 +181,8 @@ def screen_at(coef, st, o, lanes, step, k_ref, time_flags, g0, g1, g2, a0, a1, a
     skip = (f & CLOCK) != 0 and (f & GAP) == 0
     i_gyr, i_acc = o + S_LAST_GYR * lanes, o + S_ACC_PREV * lanes
     # -- gyroscope: a bad rate is replaced by the last good one ------------------------
-    # (the state's stores here and below are unconditional, of the new or the old value:
-    # across sensors in lockstep (lanes > 1) a store in a branch, even one on a value the
-    # same for all, is a masked store, slow on AMD's cores)
+    # (the state's stores here and below go through _keep: in lockstep a store in a
+    # branch, even one on a value the same for all lanes, is a masked store)
     g_range = coef[C_GYR_RANGE] * (1.0 - 1e-9)
     g_finite = _finite3(g0, g1, g2)
     g_in = abs(g0) < g_range and abs(g1) < g_range and abs(g2) < g_range
