@@ -27,9 +27,9 @@ the block (re)starts or its step takes a rare branch, that sample's steps of the
 block run in scalar code (``steady=False``, the same results for the other lanes), with
 the sample as screened, which is the order of ``contract._sample``. Otherwise every lane
 steps in the vector loop, none left out: a lane left out makes each store of the step a
-masked store, slow on AMD's cores (Zen 3: 8-15 % of a block's time), and the screening's
-stores are unconditional too (``jit.select``), also for a value the same for all lanes
-(``has_mag``).
+masked store, slow on AMD's cores (Zen 3: about 9 % of a block's time under ``perf``), and
+the screening's stores are unconditional too (``jit.select``), also for a value the same
+for all lanes (``has_mag``).
 
 Entry points using these must be compiled with ``error_model="numpy"``. Under numba's
 default a float division checks its divisor and may raise: a branch the vectoriser cannot
