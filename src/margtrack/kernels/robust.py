@@ -140,17 +140,18 @@ def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     """Whether this sample takes one of ``step_at``'s rare branches (no interval, the first
     accelerometer samples since a start, an all-zero accelerometer, gains not cached for
     the interval, no field reference yet): those run in ``contract_lanes``' scalar pass."""
+    # (& and |, not and/or: no branches, which would make the lockstep pass's stores
+    # around this masked stores)
     ready = (
-        dt > 0.0
-        and st[o + R_LP_STAGE * lanes] == LP_FILTER
-        and (a0 != 0.0 or a1 != 0.0 or a2 != 0.0)
-        and gains_ready_at(st, o, lanes, coef, dt)
+        (dt > 0.0)
+        & (st[o + R_LP_STAGE * lanes] == LP_FILTER)
+        & ((a0 != 0.0) | (a1 != 0.0) | (a2 != 0.0))
+        & gains_ready_at(st, o, lanes, coef, dt)
     )
-    if has_mag:
-        ready = ready and st[o + R_MAG_NORM_REF * lanes] > 0.0 and not math.isnan(
-            st[o + R_MAG_DIP_REF * lanes]
-        )
-    return not ready
+    field_ready = (st[o + R_MAG_NORM_REF * lanes] > 0.0) & (
+        st[o + R_MAG_DIP_REF * lanes] == st[o + R_MAG_DIP_REF * lanes]  # (not nan)
+    )
+    return not (ready & (field_ready | (not has_mag)))
 
 
 @njit(cache=True, nogil=True, _nrt=False)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from margtrack.kernels.jit import njit
+from margtrack.kernels.jit import njit, select
 from margtrack.kernels.robust_layout import (
     C_MAG_REF_TAU,
     C_REST_TAU,
@@ -114,7 +114,7 @@ def gains_at(st, o, lanes, coef, step):
 def gains_ready_at(st, o, lanes, coef, step):
     """Whether one of the two slots has the gains for ``step`` (then :func:`gains_at`
     computes nothing)."""
-    return _slot_matches_at(st, o, lanes, R_GAINS, coef, step) or _slot_matches_at(
+    return _slot_matches_at(st, o, lanes, R_GAINS, coef, step) | _slot_matches_at(
         st, o, lanes, R_GAINS + N_GAINS, coef, step
     )
 
@@ -138,11 +138,12 @@ def gains_steady_at(st, o, lanes, coef, step):
     match1 = _slot_matches_at(st, o, lanes, R_GAINS + N_GAINS, coef, step)
     second = st[i_use] == N_GAINS
     # kept when it matches, else the other one (which does)
-    second = second == (match1 if second else match0)
-    st[i_use] = N_GAINS if second else 0
+    second = second == ((second & match1) | ((not second) & match0))
+    st[i_use] = select(second, N_GAINS, 0.0)
     # both slots loaded, then values selected (a select between two loads becomes a load
-    # from a selected address, which the vectoriser cannot bound)
+    # from a selected address, which the vectoriser cannot bound; jit.select, not a
+    # branch: after a few branches each store below became a masked store)
     r0, f0, m0, b00, a10, a20 = gains_values_at(st, o, lanes, R_GAINS)
     r1, f1, m1, b01, a11, a21 = gains_values_at(st, o, lanes, R_GAINS + N_GAINS)
-    return (r1 if second else r0, f1 if second else f0, m1 if second else m0,
-            b01 if second else b00, a11 if second else a10, a21 if second else a20)
+    return (select(second, r1, r0), select(second, f1, f0), select(second, m1, m0),
+            select(second, b01, b00), select(second, a11, a10), select(second, a21, a20))

@@ -8,9 +8,13 @@ gets the same arithmetic in either (bit for bit).
 ``steady=True`` (a constant) is the lockstep pass: the caller has checked
 (``robust._rare_at``) that this sample takes none of the rare branches (no interval, the
 first accelerometer samples since a start, an all-zero accelerometer, gains not cached
-for this interval, no field reference yet), so the step leaves them out of its code; the
-other branches become selects (its angles come from ``_fastmath``: a library call inside
-a branch would stop the vectoriser). Everything is computed in ENU.
+for this interval, no field reference yet), so the step leaves them out of its code. Its
+other branches compute both sides and store through ``jit.keep`` / ``jit.select`` (the
+new value or the old), the heading's in :func:`_heading_steady`: a store in a branch is a
+masked store in lockstep, slow on AMD's cores (44 of them took 22 % of the block's time).
+One sensor alone keeps the branches (``lanes == 1``). Its angles come from ``_fastmath``
+(a library call inside a branch would stop the vectoriser). Everything is computed in
+ENU.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ import math
 
 from margtrack.kernels._fastmath import atan2, sincos
 from margtrack.kernels._quat import exp_half, mul, normalized
-from margtrack.kernels.jit import njit
+from margtrack.kernels.jit import keep, njit, select
 from margtrack.kernels.robust_gains import (
     _bw_hold,
     _bw_step,
@@ -50,19 +54,23 @@ def _wrap(angle):
     """An angle in (-3 pi, 3 pi) wrapped to [-pi, pi] (the differences and sums of two
     wrapped angles here); the same as ``atan2(sin, cos)`` to rounding, at a fraction of
     its cost."""
-    if angle > math.pi:
-        return angle - 2.0 * math.pi
-    if angle < -math.pi:
-        return angle + 2.0 * math.pi
-    return angle
+    return select(angle > math.pi, angle - 2.0 * math.pi,
+                  select(angle < -math.pi, angle + 2.0 * math.pi, angle))
+
+
+@njit(cache=True, inline="always")
+def to_output_frame(ned, w, x, y, z):
+    """q (ENU) in the output frame: to NED when ``ned``. Both computed, one selected
+    (``jit.select``): a branch here made each output's store a masked store in lockstep."""
+    nw, nx, ny, nz = mul(0.0, H, H, 0.0, w, x, y, z)
+    return select(ned, nw, w), select(ned, nx, x), select(ned, ny, y), select(ned, nz, z)
 
 
 @njit(cache=True, inline="always")
 def outputs_at(st, o, lanes, ned, q6w, q6x, q6y, q6z, xa, xo, outs):
     """Extra output k to ``xa[xo + k * outs]``: the 6-D quaternion (ENU in; to NED when
     ``ned``), the bias and its deviation."""
-    if ned:
-        q6w, q6x, q6y, q6z = mul(0.0, H, H, 0.0, q6w, q6x, q6y, q6z)
+    q6w, q6x, q6y, q6z = to_output_frame(ned, q6w, q6x, q6y, q6z)
     xa[xo + X_QUAT6 * outs], xa[xo + (X_QUAT6 + 1) * outs] = q6w, q6x
     xa[xo + (X_QUAT6 + 2) * outs], xa[xo + (X_QUAT6 + 3) * outs] = q6y, q6z
     i_b, i_sd = o + R_BIAS * lanes, o + R_BIAS_SD * lanes
@@ -75,10 +83,12 @@ def outputs_at(st, o, lanes, ned, q6w, q6x, q6y, q6z, xa, xo, outs):
 
 
 @njit(cache=True, inline="always")
-def _bias_update(st, o, lanes, k, p, gain, u):
-    """Bias axis k after a Kalman update with this gain on the measurement residual u."""
-    st[o + (R_BIAS + k) * lanes] += gain * u
-    st[o + (R_BIAS_VAR + k) * lanes] = p
+def _bias_update(st, o, lanes, k, p, gain, u, live):
+    """Bias axis k after a Kalman update with this gain on the measurement residual u, if
+    ``live`` (``jit.keep``: in lockstep computed whatever ``live``, the old value kept)."""
+    i_b = o + (R_BIAS + k) * lanes
+    keep(st, i_b, live, st[i_b] + gain * u, lanes)
+    keep(st, o + (R_BIAS_VAR + k) * lanes, live, p, lanes)
 
 
 @njit(cache=True, inline="always")
@@ -111,28 +121,29 @@ def _rest(st, o, lanes, coef, k_rest, step, g0, g1, g2, a0, a1, a2, acc_ok):
     elif not still:
         st[i_still] = 0.0  # without an accelerometer the gyro alone can end rest
     rest = still & (st[i_still] >= coef[C_REST_MIN_T])
-    if rest:
+    if lanes > 1 or rest:  # (lockstep: every lane computes, the rest keep their values)
         # at rest the gyro reads its bias: a Kalman update per axis (Ang's bias states, 003)
         # (written out: a loop inside a branch stops the vectoriser)
         r = coef[C_BIAS_REST_NOISE] ** 2
         i_b, i_v = o + R_BIAS * lanes, o + R_BIAS_VAR * lanes
         p0, p1, p2 = st[i_v], st[i_v + lanes], st[i_v + 2 * lanes]
         k0, k1, k2 = p0 / (p0 + r), p1 / (p1 + r), p2 / (p2 + r)
-        _bias_update(st, o, lanes, 0, (1.0 - k0) * p0, k0, gr0 - st[i_b])
-        _bias_update(st, o, lanes, 1, (1.0 - k1) * p1, k1, gr1 - st[i_b + lanes])
-        _bias_update(st, o, lanes, 2, (1.0 - k2) * p2, k2, gr2 - st[i_b + 2 * lanes])
+        _bias_update(st, o, lanes, 0, (1.0 - k0) * p0, k0, gr0 - st[i_b], rest)
+        _bias_update(st, o, lanes, 1, (1.0 - k1) * p1, k1, gr1 - st[i_b + lanes], rest)
+        _bias_update(st, o, lanes, 2, (1.0 - k2) * p2, k2, gr2 - st[i_b + 2 * lanes], rest)
     return rest
 
 
 @njit(cache=True, inline="always")
-def _motion_bias(st, o, lanes, k, r, u, v):
+def _motion_bias(st, o, lanes, k, r, u, v, live):
     """Bias axis k from the horizontal correction rate u, weighted by how much of the
-    axis lies in the horizontal plane (1 - v²)."""
+    axis lies in the horizontal plane (1 - v²), if ``live``."""
     horizontal = 1.0 - v * v
-    if horizontal > 1e-3:
+    live = live & (horizontal > 1e-3)
+    if lanes > 1 or live:
         p = st[o + (R_BIAS_VAR + k) * lanes]
         gain = p * horizontal / (p * horizontal + r)
-        _bias_update(st, o, lanes, k, (1.0 - gain * horizontal) * p, -gain, u)
+        _bias_update(st, o, lanes, k, (1.0 - gain * horizontal) * p, -gain, u, live)
 
 
 @njit(cache=True, inline="always")
@@ -163,7 +174,8 @@ def _incline(st, o, lanes, coef, b0, a1, a2, step, x0, x1, x2, rest, steady):
     st[lp], st[lp + lanes], st[lp + 2 * lanes] = l0, l1, l2
     lx, ly, lz = rotate(cw, cx, cy, cz, l0, l1, l2)
     norm = math.sqrt(lx * lx + ly * ly + lz * lz)
-    if norm > 0.0:
+    level = norm > 0.0  # (lockstep: every lane computes, stores through jit.keep)
+    if lanes > 1 or level:
         lx, ly, lz = lx / norm, ly / norm, lz / norm
         # shortest arc taking (lx, ly, lz) to up = [0, 0, 1] (004)
         if lz > -0.999999:
@@ -175,8 +187,12 @@ def _incline(st, o, lanes, coef, b0, a1, a2, step, x0, x1, x2, rest, steady):
             rw, rx, ry = 0.0, 1.0, 0.0
         cw, cx, cy, cz = mul(rw, rx, ry, 0.0, cw, cx, cy, cz)
         cw, cx, cy, cz = normalized(cw, cx, cy, cz)
-        st[i_c], st[i_c + lanes], st[i_c + 2 * lanes], st[i_c + 3 * lanes] = cw, cx, cy, cz
-        if not rest:
+        keep(st, i_c, level, cw, lanes)
+        keep(st, i_c + lanes, level, cx, lanes)
+        keep(st, i_c + 2 * lanes, level, cy, lanes)
+        keep(st, i_c + 3 * lanes, level, cz, lanes)
+        moving = level & (not rest)
+        if lanes > 1 or moving:
             # the applied correction rate (level frame), seen in the body, is minus the
             # horizontal bias error: a bias measurement in motion
             q6w, q6x, q6y, q6z = mul(cw, cx, cy, cz, gw, gx, gy, gz)
@@ -184,17 +200,17 @@ def _incline(st, o, lanes, coef, b0, a1, a2, step, x0, x1, x2, rest, steady):
             # only the horizontal components are observed
             vx, vy, vz = rotate(q6w, -q6x, -q6y, -q6z, 0.0, 0.0, 1.0)
             r = coef[C_BIAS_MOTION_NOISE] ** 2
-            _motion_bias(st, o, lanes, 0, r, ux, vx)
-            _motion_bias(st, o, lanes, 1, r, uy, vy)
-            _motion_bias(st, o, lanes, 2, r, uz, vz)
+            _motion_bias(st, o, lanes, 0, r, ux, vx, moving)
+            _motion_bias(st, o, lanes, 1, r, uy, vy, moving)
+            _motion_bias(st, o, lanes, 2, r, uz, vz, moving)
 
 
 @njit(cache=True, inline="always")
-def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, steady):
+def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz):
     """Heading from the horizontal field (004's vector rejection), unless the field's norm
     or dip disagrees with the tracked reference; returns whether it did (disturbed).
     (mx, my, mz): the field in the level frame; ``k_ref``, ``k_mag``: the interval's gains
-    (read only when step > 0)."""
+    (read only when step > 0). The lockstep pass has :func:`_heading_steady`."""
     m_norm = math.sqrt(mx * mx + my * my + mz * mz)
     horizontal = math.sqrt(mx * mx + my * my)
     # an all-zero sample (no measurement) has m_norm == 0: skipped
@@ -205,13 +221,12 @@ def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, steady):
     i_n, i_since = o + R_HEADING_N * lanes, o + R_SINCE_START * lanes
     if usable:
         dip = atan2(-mz, horizontal)
-        if not steady:  # (the lockstep pass has both references)
-            if st[i_nref] <= 0.0:
-                st[i_nref] = m_norm
-                st[i_cn] = m_norm
-            if math.isnan(st[i_dref]):
-                st[i_dref] = dip
-                st[i_cd] = dip
+        if st[i_nref] <= 0.0:
+            st[i_nref] = m_norm
+            st[i_cn] = m_norm
+        if math.isnan(st[i_dref]):
+            st[i_dref] = dip
+            st[i_cd] = dip
         ref_n, ref_d = st[i_nref], st[i_dref]
         disturbed = (abs(m_norm - ref_n) > coef[C_MAG_NORM_TOL] * ref_n) | (
             abs(dip - ref_d) > coef[C_MAG_DIP_TOL]
@@ -255,10 +270,52 @@ def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, steady):
                     st[i_nref] = st[i_cn]
                     st[i_dref] = st[i_cd]
                     st[i_cs] = 0.0
-    if not steady and st[i_since] == 0.0 and st[i_n] == 1.0 and (disturbed or not usable):
+    if st[i_since] == 0.0 and st[i_n] == 1.0 and (disturbed or not usable):
         # a start without an undisturbed field: its heading is no measurement, the first
         # one replaces it (the lockstep pass has had an interval since its start)
         st[i_n] = 0.0
+    return disturbed
+
+
+@njit(cache=True, inline="always")
+def _heading_steady(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, has_mag):
+    """:func:`_heading` in the lockstep pass (both references known, step > 0; the field
+    used only with ``has_mag``): the same values, each slot stored whatever the branches
+    (``jit.select``: the new value or the old), as a store in a branch is a masked store."""
+    m_norm = math.sqrt(mx * mx + my * my + mz * mz)
+    horizontal = math.sqrt(mx * mx + my * my)
+    usable = has_mag & (m_norm > 0.0) & (horizontal > 1e-6 * m_norm)
+    i_nref, i_dref = o + R_MAG_NORM_REF * lanes, o + R_MAG_DIP_REF * lanes
+    i_cn, i_cd, i_cs = o + R_CAND_NORM * lanes, o + R_CAND_DIP * lanes, o + R_CAND_S * lanes
+    i_n, i_head = o + R_HEADING_N * lanes, o + R_HEADING * lanes
+    dip = atan2(-mz, horizontal)
+    ref_n, ref_d = st[i_nref], st[i_dref]
+    disturbed = usable & (
+        (abs(m_norm - ref_n) > coef[C_MAG_NORM_TOL] * ref_n)
+        | (abs(dip - ref_d) > coef[C_MAG_DIP_TOL])
+    )
+    accepted = usable & (not disturbed)
+    # accepted: the heading moves (start-up: the mean of the measurements, _heading)
+    converging = accepted & (st[o + R_SINCE_START * lanes] < coef[C_CONVERGE])
+    n_heading = st[i_n] + 1.0
+    st[i_n] = select(converging, n_heading, st[i_n])
+    k = select(converging, max(k_mag, 1.0 / n_heading), k_mag)
+    head = st[i_head]
+    st[i_head] = select(accepted, _wrap(head + k * _wrap(atan2(mx, my) - head)), head)
+    # disturbed: the candidate reference, adopted once steady long enough
+    cand_n, cand_d, cand_s = st[i_cn], st[i_cd], st[i_cs]
+    consistent = (abs(m_norm - cand_n) < coef[C_MAG_NORM_TOL] * cand_n) & (
+        abs(dip - cand_d) < coef[C_MAG_DIP_TOL]
+    )
+    new_s = select(consistent, cand_s + step, 0.0)
+    new_n = select(consistent, cand_n + k_ref * (m_norm - cand_n), m_norm)
+    new_d = select(consistent, cand_d + k_ref * (dip - cand_d), dip)
+    adopted = disturbed & (new_s > coef[C_MAG_NEW_REF_T])
+    st[i_nref] = select(accepted, ref_n + k_ref * (m_norm - ref_n), select(adopted, new_n, ref_n))
+    st[i_dref] = select(accepted, ref_d + k_ref * (dip - ref_d), select(adopted, new_d, ref_d))
+    st[i_cn] = select(accepted, m_norm, select(disturbed, new_n, cand_n))
+    st[i_cd] = select(accepted, dip, select(disturbed, new_d, cand_d))
+    st[i_cs] = select(accepted | adopted, 0.0, select(disturbed, new_s, cand_s))
     return disturbed
 
 
@@ -317,16 +374,22 @@ def step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag,
     q6w, q6x, q6y, q6z = mul(st[i_c], st[i_c + lanes], st[i_c + 2 * lanes], st[i_c + 3 * lanes],
                              st[i_g], st[i_g + lanes], st[i_g + 2 * lanes], st[i_g + 3 * lanes])
     disturbed = False
-    if has_mag:
+    if steady:  # (without a field too: a branch on has_mag would mask the stores)
+        mx, my, mz = rotate(q6w, q6x, q6y, q6z, m0, m1, m2)
+        disturbed = _heading_steady(st, o, lanes, coef, k_ref, k_mag, dt, mx, my, mz, has_mag)
+        sin_half, cos_half = sincos(0.5 * st[o + R_HEADING * lanes])
+        ow, ox, oy, oz = mul(cos_half, 0.0, 0.0, sin_half, q6w, q6x, q6y, q6z)
+        ow, ox = select(has_mag, ow, q6w), select(has_mag, ox, q6x)
+        oy, oz = select(has_mag, oy, q6y), select(has_mag, oz, q6z)
+    elif has_mag:
         mx, my, mz = rotate(q6w, q6x, q6y, q6z, m0, m1, m2)  # the field in the level frame
-        disturbed = _heading(st, o, lanes, coef, k_ref, k_mag, dt, mx, my, mz, steady)
+        disturbed = _heading(st, o, lanes, coef, k_ref, k_mag, dt, mx, my, mz)
         sin_half, cos_half = sincos(0.5 * st[o + R_HEADING * lanes])
         ow, ox, oy, oz = mul(cos_half, 0.0, 0.0, sin_half, q6w, q6x, q6y, q6z)
     else:
         ow, ox, oy, oz = q6w, q6x, q6y, q6z
     ned = coef[C_NED] > 0.5
-    if ned:
-        ow, ox, oy, oz = mul(0.0, H, H, 0.0, ow, ox, oy, oz)
+    ow, ox, oy, oz = to_output_frame(ned, ow, ox, oy, oz)
     qa[qo], qa[qo + outs], qa[qo + 2 * outs], qa[qo + 3 * outs] = ow, ox, oy, oz
     outputs_at(st, o, lanes, ned, q6w, q6x, q6y, q6z, xa, xo, outs)
     return (REST if rest else 0) | (MAG_DISTURBED if disturbed else 0)

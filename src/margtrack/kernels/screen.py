@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from margtrack.kernels import _fastmath
-from margtrack.kernels.jit import njit, select
+from margtrack.kernels.jit import keep, njit
 
 # flag bits (margtrack.estimator.flags.Flag)
 INVALID = 1
@@ -125,18 +125,6 @@ def _finite3(x, y, z):
 
 
 @njit(cache=True, inline="always")
-def _keep(st, i, live, value, lanes):
-    """``st[i] = value`` if ``live``. In lockstep (``lanes > 1``, a constant) a store of the
-    new or the old value whatever ``live`` (``jit.select``): a store in a branch is a masked
-    store across lanes, slow on AMD's cores. One sensor alone keeps the branch, which its
-    serial chain runs faster (selects there cost 3-6 % of a method's time on one stream)."""
-    if lanes > 1:
-        st[i] = select(live, value, st[i])
-    elif live:
-        st[i] = value
-
-
-@njit(cache=True, inline="always")
 def ref_gain(step):
     """Gain of the field reference's slow tracking over an interval ``step`` s (0: none).
 
@@ -181,7 +169,7 @@ def screen_at(coef, st, o, lanes, step, k_ref, time_flags, g0, g1, g2, a0, a1, a
     skip = (f & CLOCK) != 0 and (f & GAP) == 0
     i_gyr, i_acc = o + S_LAST_GYR * lanes, o + S_ACC_PREV * lanes
     # -- gyroscope: a bad rate is replaced by the last good one ------------------------
-    # (the state's stores here and below go through _keep: in lockstep a store in a
+    # (the state's stores here and below go through jit.keep: in lockstep a store in a
     # branch, even one on a value the same for all lanes, is a masked store)
     g_range = coef[C_GYR_RANGE] * (1.0 - 1e-9)
     g_finite = _finite3(g0, g1, g2)
@@ -191,9 +179,9 @@ def screen_at(coef, st, o, lanes, step, k_ref, time_flags, g0, g1, g2, a0, a1, a
     elif has_gyr and not g_in:
         f |= GYR_CLIPPED
     g_ok = has_gyr and g_finite and g_in
-    _keep(st, i_gyr, g_ok, g0, lanes)
-    _keep(st, i_gyr + lanes, g_ok, g1, lanes)
-    _keep(st, i_gyr + 2 * lanes, g_ok, g2, lanes)
+    keep(st, i_gyr, g_ok, g0, lanes)
+    keep(st, i_gyr + lanes, g_ok, g1, lanes)
+    keep(st, i_gyr + 2 * lanes, g_ok, g2, lanes)
     if has_gyr:
         g0, g1, g2 = st[i_gyr], st[i_gyr + lanes], st[i_gyr + 2 * lanes]
     else:
@@ -245,9 +233,9 @@ def screen_at(coef, st, o, lanes, step, k_ref, time_flags, g0, g1, g2, a0, a1, a
             m0 = m1 = m2 = 0.0
     else:
         m0 = m1 = m2 = 0.0
-    _keep(st, i_acc, acc_ok, a0, lanes)
-    _keep(st, i_acc + lanes, acc_ok, a1, lanes)
-    _keep(st, i_acc + 2 * lanes, acc_ok, a2, lanes)
+    keep(st, i_acc, acc_ok, a0, lanes)
+    keep(st, i_acc + lanes, acc_ok, a1, lanes)
+    keep(st, i_acc + 2 * lanes, acc_ok, a2, lanes)
     return f, g0, g1, g2, a0, a1, a2, m0, m1, m2
 
 
@@ -274,10 +262,10 @@ def _axis_usable(st, o, lanes, step, k, mk, wk, rate2, stuck_s, n_changed, live)
             clip = level
     elif clip > 0.0 and level >= clip * (1.0 - 1e-12):
         ok = False
-    _keep(st, i_prev, live, mk, lanes)
-    _keep(st, i_hold, live, hold, lanes)
-    _keep(st, i_peak, live, max(peak, level), lanes)
-    _keep(st, i_clip, live, clip, lanes)
+    keep(st, i_prev, live, mk, lanes)
+    keep(st, i_hold, live, hold, lanes)
+    keep(st, i_peak, live, max(peak, level), lanes)
+    keep(st, i_clip, live, clip, lanes)
     return ok
 
 
@@ -409,9 +397,9 @@ def _disturbed(coef, st, o, lanes, step, k, acc_ok, a0, a1, a2, m0, m1, m2, live
         if cand_s > NEW_REF_S:
             ref_n, ref_d, cand_s = cand_n, cand_d, 0.0
     live = live and not absurd  # an absurd sample does not move the reference
-    _keep(st, j + R_NORM * lanes, live, ref_n, lanes)
-    _keep(st, j + R_DIP * lanes, live, ref_d, lanes)
-    _keep(st, j + R_CAND_NORM * lanes, live, cand_n, lanes)
-    _keep(st, j + R_CAND_DIP * lanes, live, cand_d, lanes)
-    _keep(st, j + R_CAND_S * lanes, live, cand_s, lanes)
+    keep(st, j + R_NORM * lanes, live, ref_n, lanes)
+    keep(st, j + R_DIP * lanes, live, ref_d, lanes)
+    keep(st, j + R_CAND_NORM * lanes, live, cand_n, lanes)
+    keep(st, j + R_CAND_DIP * lanes, live, cand_d, lanes)
+    keep(st, j + R_CAND_S * lanes, live, cand_s, lanes)
     return 2 if absurd else far
