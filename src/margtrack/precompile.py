@@ -12,8 +12,10 @@ A method is compiled by using it the way programs do, on a simulated recording: 
 on one sensor (and, for a method with lockstep kernels, ``kernels/contract_lanes.py``, on
 enough sensors for those), and ``update`` sample by sample on one sensor (past the unit
 check, so the one-sample kernel too) and on several. Several sensors over threads take
-the same kernels (``estimator/sensor_threads.py``). Kernels called with other argument
-types (float32 arrays straight into a kernel, say) still compile on first use.
+the same kernels (``estimator/sensor_threads.py``). A method's parameters that select other
+kernels (its ``compile_variants``: ekf's ``bias_states``) are used the same way. Kernels
+called with other argument types (float32 arrays straight into a kernel, say) still compile
+on first use.
 """
 
 from __future__ import annotations
@@ -122,24 +124,36 @@ def _compile_method(name: str) -> float:
 
 
 def _use_method(name: str) -> float:
-    """:func:`_compile_method`'s work: the calls that compile the method's kernels."""
+    """:func:`_compile_method`'s work: the calls that compile the method's kernels, with
+    its default parameters and each of its ``compile_variants`` (parameters that select
+    other kernels, such as ekf's ``bias_states``)."""
     from margtrack import methods
-    from margtrack.estimator.compiled import LANES_MIN_SENSORS
     from margtrack.sim import simulate_motion
 
     start = time.perf_counter()
     rec = simulate_motion("random", duration_s=_SAMPLES / 100.0, rate_hz=100.0, seed=1)
-    gyr, acc, mag = rec.gyr[:_SAMPLES], rec.acc[:_SAMPLES], rec.mag[:_SAMPLES]
-    methods.create(name).run(gyr=gyr, acc=acc, mag=mag, rate_hz=100.0)
-    if hasattr(getattr(methods.get(name), "kernel", None), "run_lanes"):
+    samples = rec.gyr[:_SAMPLES], rec.acc[:_SAMPLES], rec.mag[:_SAMPLES]
+    for params in ({}, *getattr(methods.get(name), "compile_variants", ())):
+        _use_variant(name, params, *samples)
+    return time.perf_counter() - start
+
+
+def _use_variant(name: str, params: dict[str, object], gyr: np.ndarray, acc: np.ndarray,
+                 mag: np.ndarray) -> None:
+    """``run`` and ``update`` of method ``name`` with ``params``, as the module says."""
+    from margtrack import methods
+    from margtrack.estimator.compiled import LANES_MIN_SENSORS
+
+    methods.create(name, params).run(gyr=gyr, acc=acc, mag=mag, rate_hz=100.0)
+    if hasattr(getattr(methods.create(name, params), "kernel", None), "run_lanes"):
         lanes = [np.tile(x, (LANES_MIN_SENSORS, 1, 1)) for x in (gyr, acc, mag)]
-        methods.create(name).run(gyr=lanes[0], acc=lanes[1], mag=lanes[2], rate_hz=100.0)
+        methods.create(name, params).run(gyr=lanes[0], acc=lanes[1], mag=lanes[2],
+                                         rate_hz=100.0)
     many = [np.stack([x, x]) for x in (gyr, acc, mag)]
     if not getattr(methods.get(name), "offline", False):
-        one = methods.create(name, rate_hz=100.0)
+        one = methods.create(name, params, rate_hz=100.0)
         for i in range(_SAMPLES):
             one.update(gyr[i], acc[i], mag[i])
-        several = methods.create(name, rate_hz=100.0)
+        several = methods.create(name, params, rate_hz=100.0)
         for i in range(3):
             several.update(many[0][:, i], many[1][:, i], many[2][:, i])
-    return time.perf_counter() - start

@@ -208,6 +208,8 @@ class MarinsEkf(CompiledEstimator[MarinsEkfParams]):
     kernel = _ByMode(kernel, bias_kernel)  # type: ignore[assignment]
     state_layout = _ByMode(_LAYOUT, _BIAS_LAYOUT)  # type: ignore[assignment]
     outputs_layout = _ByMode(_OUTPUTS, _BIAS_OUTPUTS)  # type: ignore[assignment]
+    #: parameters with kernels of their own, compiled too by ``margtrack compile ekf``
+    compile_variants = ({"bias_states": True},)
 
     @CompiledEstimator.params.setter  # type: ignore[attr-defined]
     def params(self, value: MarinsEkfParams) -> None:

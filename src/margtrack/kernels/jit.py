@@ -27,8 +27,8 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 __all__ = [
-    "LazyKernel", "dispatcher", "kernels", "literally", "njit", "numba_loaded", "on_numba_load",
-    "resolve_all", "select", "to_fixed_tuple",
+    "LazyKernel", "compiled_ir", "dispatcher", "kernels", "literally", "njit", "numba_loaded",
+    "on_numba_load", "resolve_all", "select", "to_fixed_tuple",
 ]
 
 
@@ -243,6 +243,21 @@ def dispatcher(kernel: Any) -> Any:
     numba imported if it is not yet: for calls that must not go to an ahead-of-time build
     (which holds the GIL)."""
     return kernel.resolve() if isinstance(kernel, LazyKernel) else kernel
+
+
+def compiled_ir(kernel: Any) -> str:
+    """The optimised LLVM IR of every compiled signature of ``kernel`` (a dispatcher or a
+    lazy kernel), also when numba loaded it from its cache.
+
+    numba's ``inspect_llvm`` refuses a kernel loaded from the cache; the cache entry keeps
+    the optimised module beside the machine code (to link it into kernels that call it),
+    and that module is returned here. For tests and diagnostics: which loops vectorised,
+    which stores are masked, without compiling a kernel a second time.
+    """
+    found = dispatcher(kernel)
+    # numba's CodeLibrary: the final module, marked for linking (numba 0.59-0.68)
+    return "\n".join(str(found.overloads[sig].library._get_module_for_linking())
+                     for sig in found.signatures)
 
 
 def resolve_all() -> None:
