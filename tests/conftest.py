@@ -54,5 +54,8 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     if reporter is not None and seconds:
         reporter.write_line(
             f"margtrack kernels ready in numba's cache in {time.perf_counter() - start:.0f} s "
-            f"(slowest: {max(seconds, key=seconds.get)} {max(seconds.values()):.0f} s)"
+            "(each method's process: "
+            + ", ".join(f"{name} {s:.0f} s" for name, s in
+                        sorted(seconds.items(), key=lambda item: -item[1]))
+            + ")"
         )
