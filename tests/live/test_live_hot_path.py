@@ -109,6 +109,22 @@ def test_batch_buffers_reuse_their_memory_and_copy_only_strided_inputs():
     np.testing.assert_array_equal(copied, strided)
 
 
+@pytest.mark.kernel
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_batch_buffers_copy_frame_major_batches_value_for_value(dtype):
+    # a source's batch: frames of all sensors together, (N, S, 3) in memory, seen as (S, N, 3)
+    buf = BatchBuffers(7, {"gyr": (3, np.float64)})
+    memory = np.random.default_rng(1).normal(size=(10, 7, 3)).astype(dtype)
+    memory[2, 4, 1], memory[5, 0, 2], memory[6, 6, 0] = np.nan, np.inf, -0.0  # kept as they are
+    whole = np.swapaxes(memory, 0, 1)
+    for a, b in ((3, 7), (0, 10), (9, 10)):
+        batch = whole[:, a:b]
+        copied = buf.contiguous("gyr", batch)
+        assert copied.flags.c_contiguous and copied.dtype == np.float64
+        np.testing.assert_array_equal(copied, batch.astype(np.float64))
+        assert np.array_equal(np.signbit(copied), np.signbit(batch))
+
+
 def _engine_run(hot, strict):
     duration = 4.0
     names = tuple(f"s{i}" for i in range(10))
