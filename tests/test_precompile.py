@@ -111,7 +111,29 @@ def test_a_method_is_used_with_each_of_its_kernel_variants(monkeypatch):
     used = []
     monkeypatch.setattr(pre, "_use_variant", lambda name, params, *samples: used.append(
         (name, params, samples[0].shape)))
-    pre._use_method("ekf")
-    pre._use_method("gyro")
+    pre._compile_method("ekf")
+    pre._compile_method("gyro")
     assert used == [("ekf", {}, (400, 3)), ("ekf", {"bias_states": True}, (400, 3)),
                     ("gyro", {}, (400, 3))]
+
+
+def test_the_pool_gets_the_longest_compilations_first_and_sums_a_methods_parts(monkeypatch):
+    import margtrack.precompile as pre
+
+    order = []
+
+    def compile_group(units):
+        order.append(units)
+        return [10.0 if params else 1.0 for _, params in units]
+
+    monkeypatch.setattr(pre, "_compile_group", compile_group)
+    done = []
+    seconds = pre.precompile(["triad", "bachmann", "bachmann-accmag", "ekf", "robust"], jobs=1,
+                             progress=lambda name, s: done.append(name))
+    # ekf and its bias-state variant are two tasks (other kernels); bachmann and
+    # bachmann-accmag one (the same kernels)
+    assert order == [[("ekf", {})], [("ekf", {"bias_states": True})], [("robust", {})],
+                     [("bachmann", {}), ("bachmann-accmag", {})], [("triad", {})]]
+    assert seconds == {"triad": 1.0, "bachmann": 1.0, "bachmann-accmag": 1.0, "ekf": 11.0,
+                       "robust": 1.0}
+    assert sorted(done) == sorted(seconds) and done.count("ekf") == 1

@@ -32,6 +32,14 @@ __all__ = ["precompile"]
 
 #: samples of the simulated recording
 _SAMPLES = 400
+#: seconds each method took to compile on an empty cache on the 2-core CI machine
+#: (2026-12-03, the line ``tests/conftest.py`` prints; ekf with its bias-state kernels):
+#: the pool starts the longest first. A method not listed comes after, in registry order
+_COMPILE_S = {"ekf": 267.0, "robust": 239.0, "bachmann": 138.0, "gradient": 122.0,
+              "bias-kf": 98.0, "gyro": 63.0, "davenport": 56.0}
+
+#: a method's name and the parameters it is used with
+Unit = tuple[str, dict[str, object]]
 
 
 def precompile(
@@ -44,8 +52,9 @@ def precompile(
 
     ``jobs`` processes share the methods (default: the machine's CPUs, at most one per
     kernel module; 1 compiles in this process). ``progress(name, seconds)`` is called as
-    each method is done. Returns the seconds each method took in its process: compilation on a
-    cold cache, loading from the cache otherwise (a fraction of a second). Nothing is
+    each method is done. Returns the seconds each method took (its default parameters and its
+    ``compile_variants``, which may run in different processes): compilation on a cold cache,
+    loading from the cache otherwise (a fraction of a second). Nothing is
     compiled with ``NUMBA_DISABLE_JIT=1`` (the kernels then run as Python): returns {}.
     A method that fails raises its error, after the others have finished.
     """
@@ -60,39 +69,44 @@ def precompile(
         raise ValueError(f"jobs must be at least 1, got {jobs}")
     if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0") or not chosen:
         return {}
-    # methods on the same kernels (bachmann and bachmann-accmag, robust and robust-offline)
-    # go to one process, one after the other: the second loads what the first compiled
-    kernels = {name: getattr(methods.get(name), "kernel", None) for name in chosen}
-    groups: dict[str, list[str]] = {}
-    for name, kernel in kernels.items():
-        groups.setdefault(kernel.__name__ if kernel is not None else name, []).append(name)
-    # the recursive filters' kernels first (the long compilations), so that no process is
-    # left compiling one of them alone at the end
-    tasks = sorted(groups.values(), key=lambda names: kernels[names[0]] is None)
+    # a method and each of its compile_variants is a unit; units on the same kernels
+    # (bachmann and bachmann-accmag, robust and robust-offline) go to one process, one after
+    # the other: the second loads what the first compiled
+    groups: dict[str, list[Unit]] = {}
+    for name in chosen:
+        for params in ({}, *getattr(methods.get(name), "compile_variants", ())):
+            kernel = getattr(methods.create(name, params), "kernel", None)
+            groups.setdefault(kernel.__name__ if kernel is not None else name, []).append(
+                (name, params))
+    # the longest compilations first, so that no process is left with one of them alone
+    # at the end (stable: the others in the registry's order)
+    tasks = sorted(groups.values(), key=lambda units: -_COMPILE_S.get(units[0][0], 0.0))
     jobs = min(jobs, len(tasks))
-    seconds: dict[str, float] = {}
+    seconds = dict.fromkeys(chosen, 0.0)
+    pending = {name: sum(name == n for task in tasks for n, _ in task) for name in chosen}
     failures: dict[str, BaseException] = {}
 
-    def finished(names: list[str], outcome: dict[str, float] | BaseException) -> None:
+    def finished(units: list[Unit], outcome: list[float] | BaseException) -> None:
         if isinstance(outcome, BaseException):
-            failures[names[0]] = outcome
+            failures[units[0][0]] = outcome
             return
-        for name in names:
-            seconds[name] = outcome[name]
-            if progress is not None:
+        for (name, _), took in zip(units, outcome, strict=True):
+            seconds[name] += took
+            pending[name] -= 1
+            if progress is not None and pending[name] == 0:
                 progress(name, seconds[name])
 
     if jobs == 1:
-        for names in tasks:
-            finished(names, _compile_group(names))
+        for units in tasks:
+            finished(units, _compile_group(units))
     else:
         # spawn: a fresh interpreter (forking a process with numba's threads is unsafe)
         context = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
-            futures = {pool.submit(_compile_group, names): names for names in tasks}
+            futures = {pool.submit(_compile_group, units): units for units in tasks}
             for future in as_completed(futures):
                 try:
-                    outcome: dict[str, float] | BaseException = future.result()
+                    outcome: list[float] | BaseException = future.result()
                 except Exception as exc:  # reported below, once every method has finished
                     outcome = exc
                 finished(futures[future], outcome)
@@ -100,42 +114,41 @@ def precompile(
         name, exc = next(iter(failures.items()))
         others = f" (and {', '.join(sorted(failures)[1:])})" if len(failures) > 1 else ""
         raise RuntimeError(f"compiling method {name!r} failed{others}: {exc}") from exc
-    return {name: seconds[name] for name in chosen}
+    return seconds
 
 
-def _compile_group(names: list[str]) -> dict[str, float]:
-    """:func:`_compile_method` for each of ``names`` in turn."""
-    return {name: _compile_method(name) for name in names}
+def _compile_group(units: list[Unit]) -> list[float]:
+    """:func:`_compile_unit` for each of ``units`` in turn: the seconds each took."""
+    return [_compile_unit(name, params) for name, params in units]
 
 
 def _compile_method(name: str) -> float:
-    """Use method ``name`` as programs do (module docstring); the seconds it took."""
+    """Use method ``name`` as programs do (module docstring), with its default parameters
+    and each of its ``compile_variants``; the seconds it took."""
+    from margtrack import methods
+
+    variants = ({}, *getattr(methods.get(name), "compile_variants", ()))
+    return sum(_compile_unit(name, params) for params in variants)
+
+
+def _compile_unit(name: str, params: dict[str, object]) -> float:
+    """:func:`_use_variant` on a simulated recording; the seconds it took."""
+    from margtrack.sim import simulate_motion
+
     # a quick-start build would serve the calls without compiling (kernels/aot.py): off
     # while the method runs, then as it was (this may be the caller's process, jobs=1)
     saved = os.environ.get("MARGTRACK_AOT")
     os.environ["MARGTRACK_AOT"] = "0"
     try:
-        return _use_method(name)
+        start = time.perf_counter()
+        rec = simulate_motion("random", duration_s=_SAMPLES / 100.0, rate_hz=100.0, seed=1)
+        _use_variant(name, params, rec.gyr[:_SAMPLES], rec.acc[:_SAMPLES], rec.mag[:_SAMPLES])
+        return time.perf_counter() - start
     finally:
         if saved is None:
             del os.environ["MARGTRACK_AOT"]
         else:
             os.environ["MARGTRACK_AOT"] = saved
-
-
-def _use_method(name: str) -> float:
-    """:func:`_compile_method`'s work: the calls that compile the method's kernels, with
-    its default parameters and each of its ``compile_variants`` (parameters that select
-    other kernels, such as ekf's ``bias_states``)."""
-    from margtrack import methods
-    from margtrack.sim import simulate_motion
-
-    start = time.perf_counter()
-    rec = simulate_motion("random", duration_s=_SAMPLES / 100.0, rate_hz=100.0, seed=1)
-    samples = rec.gyr[:_SAMPLES], rec.acc[:_SAMPLES], rec.mag[:_SAMPLES]
-    for params in ({}, *getattr(methods.get(name), "compile_variants", ())):
-        _use_variant(name, params, *samples)
-    return time.perf_counter() - start
 
 
 def _use_variant(name: str, params: dict[str, object], gyr: np.ndarray, acc: np.ndarray,
