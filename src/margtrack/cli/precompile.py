@@ -51,5 +51,6 @@ def compile_kernels(
     for name, s in sorted(seconds.items(), key=lambda kv: -kv[1]):
         table.add_row(name, f"{s:.1f}")
     console.print(table)
-    console.print(f"{len(seconds)} methods ready in numba's cache in {elapsed_s:.0f} s (seconds "
-                  "per method: compiling on a cold cache, loading from it on a warm one)")
+    plural = "" if len(seconds) == 1 else "s"
+    console.print(f"{len(seconds)} method{plural} ready in numba's cache in {elapsed_s:.0f} s "
+                  "(seconds per method: compiling on a cold cache, loading from it on a warm one)")
