@@ -128,6 +128,7 @@ def test_the_pool_gets_the_longest_compilations_first_and_sums_a_methods_parts(m
         return [10.0 if params else 1.0 for _, params in units]
 
     monkeypatch.setattr(pre, "_compile_group", compile_group)
+    monkeypatch.setattr(pre, "_COMPILE_S", {"ekf": 200.0, "robust": 190.0, "bachmann": 130.0})
     done = []
     seconds = pre.precompile(["triad", "bachmann", "bachmann-accmag", "ekf", "robust"], jobs=1,
                              progress=lambda name, s: done.append(name))
