@@ -73,17 +73,18 @@ def precompile(
     # (bachmann and bachmann-accmag, robust and robust-offline) go to one process, one after
     # the other: the second loads what the first compiled
     groups: dict[str, list[Unit]] = {}
+    pending = dict.fromkeys(chosen, 0)  # a method's units not finished yet
     for name in chosen:
         for params in ({}, *getattr(methods.get(name), "compile_variants", ())):
             kernel = getattr(methods.create(name, params), "kernel", None)
             groups.setdefault(kernel.__name__ if kernel is not None else name, []).append(
                 (name, params))
+            pending[name] += 1
     # the longest compilations first, so that no process is left with one of them alone
     # at the end (stable: the others in the registry's order)
     tasks = sorted(groups.values(), key=lambda units: -_COMPILE_S.get(units[0][0], 0.0))
     jobs = min(jobs, len(tasks))
     seconds = dict.fromkeys(chosen, 0.0)
-    pending = {name: sum(name == n for task in tasks for n, _ in task) for name in chosen}
     failures: dict[str, BaseException] = {}
 
     def finished(units: list[Unit], outcome: list[float] | BaseException) -> None:

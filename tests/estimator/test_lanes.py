@@ -117,9 +117,6 @@ def test_lockstep_equals_sensor_by_sensor_under_faults(name, params, monkeypatch
 
 
 @pytest.mark.kernel
-@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"),
-                    reason="numba's JIT is off: the kernels run as Python under the GIL, and the "
-                           "40 s of this comparison do not fit the 20-minute CI")
 @pytest.mark.parametrize("name", LOCKSTEP)
 def test_lockstep_threads_and_halves_equal_one_run(name, monkeypatch):
     t, gyr, acc, mag = _faulty_sensors()
