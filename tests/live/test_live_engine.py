@@ -12,7 +12,7 @@ import pytest
 from margtrack import body, methods
 from margtrack import quaternion as quat
 from margtrack.filters.complementary import BachmannParams
-from margtrack.live.engine import Engine
+from margtrack.live.engine import MAX_BATCH_FRAMES, Engine
 from margtrack.live.lines import format_line
 from margtrack.live.protocol import iter_chunks
 from margtrack.live.replay import ReplaySource, replay_path
@@ -60,13 +60,18 @@ def test_engine_poses_equal_an_offline_run_of_the_filter_and_body_model(xio_repl
     assert len(published) >= 25  # at least one per display tick crossed by a batch
     root = engine.avatars.root_positions_m[0]
     identity = engine.avatars.identity()[0]
-    batch_s = 13 / source.info.rate_hz  # the calibration is in force from its batch's end
+    # the calibration is in force from the end of its batch: the source's chunks of 13
+    # frames run in parts of at most MAX_BATCH_FRAMES frames
+    i1 = int(np.searchsorted(session_t, t1, side="right")) - 1  # the window's last frame
+    chunk, offset = divmod(i1, 13)
+    part_end = chunk * 13 + min(13, (offset // MAX_BATCH_FRAMES + 1) * MAX_BATCH_FRAMES)
+    in_force_s = session_t[part_end - 1]
     checked = 0
     for pose in published:
         i = pose.index
         assert session_t[i] == pose.t_s
         np.testing.assert_allclose(pose.q_sensor, offline.quat[:, i], atol=1e-9)
-        if t1 < pose.t_s < t1 + batch_s:
+        if t1 < pose.t_s <= in_force_s:
             continue
         checked += 1
         cal = identity if pose.t_s <= t1 else offline_cal
@@ -77,6 +82,7 @@ def test_engine_poses_equal_an_offline_run_of_the_filter_and_body_model(xio_repl
     assert checked >= len(published) - 1
     stats = engine.stats()
     assert stats.frames == 400 and stats.samples == 2800 and stats.dropped_samples == 0
+    assert stats.batches == 30 * 2 + 2  # 30 chunks of 13 = 8 + 5 frames, then 10 = 8 + 2
     assert stats.poses_published == len(published) and stats.error == ""
     assert 0 <= stats.latency_p50_s <= stats.latency_max_s
 

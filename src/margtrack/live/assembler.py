@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -65,6 +66,18 @@ class Frames:
     def n_frames(self) -> int:
         """Number of frames N."""
         return int(self.t_s.shape[0])
+
+    def part(self, start: int, stop: int) -> Frames:
+        """Frames ``start`` to ``stop`` (exclusive, clipped to N) as views; itself if all."""
+        if start <= 0 and stop >= self.n_frames:
+            return self
+
+        def cut(x: NDArray[Any] | None) -> NDArray[Any] | None:
+            return None if x is None else x[:, start:stop]
+
+        return Frames(self.t_s[start:stop], self.gyr[:, start:stop], self.acc[:, start:stop],
+                      cut(self.mag), self.arrival_s[start:stop], self.held[:, start:stop],
+                      cut(self.stale), cut(self.restart))
 
 
 class _Pending:

@@ -5,7 +5,10 @@ polls the source, assembles frames (:class:`~margtrack.live.assembler.FrameAssem
 processes them; nothing else runs the filters. What arrived while a batch was processed is
 the next batch of N frames, run in *one* multi-sensor kernel call on (S, N, 3) arrays
 (reused buffers, :mod:`~margtrack.live.filtering`), so a slow moment costs latency, not
-samples. Other threads talk to the engine through thread-safe methods (:meth:`set_params`,
+samples; a backlog is run in batches of at most ``MAX_BATCH_FRAMES`` (the kernels' best
+rate per sample, and a pose published between them), not in one ever larger batch whose
+fresh buffers cost page faults that put the engine further behind. Other threads talk to
+the engine through thread-safe methods (:meth:`set_params`,
 :meth:`request_calibration`, :meth:`start_recording`/:meth:`stop_recording`,
 :meth:`subscribe`, :meth:`stats`); :meth:`stop` (or leaving the ``with`` block) joins the
 worker and closes the source.
@@ -62,7 +65,12 @@ from margtrack.live.worker import Worker
 
 Array = NDArray[np.float64]
 
-__all__ = ["Engine", "Pose"]
+__all__ = ["MAX_BATCH_FRAMES", "Engine", "Pose"]
+
+#: frames of all sensors run in one batch at most (module docstring): from 100,000
+#: sensors, 8 frames a call is the kernels' best rate (``benchmarks/live_scale.py``'s batch
+#: scan: 1.5x that of 1 frame; 16 frames is slower again, the batch outgrowing the caches)
+MAX_BATCH_FRAMES = 8
 
 
 class Engine:
@@ -282,7 +290,14 @@ class Engine:
         if flush:
             frames += self._assembler.expire(now, flush=True)
         self._meter.time_assemble_s += time.perf_counter() - t0
-        return self.process(concatenate(frames)) if frames else None
+        if not frames:
+            return None
+        batch = concatenate(frames)
+        pose = None
+        for start in range(0, batch.n_frames, MAX_BATCH_FRAMES):
+            published = self.process(batch.part(start, start + MAX_BATCH_FRAMES))
+            pose = published if published is not None else pose
+        return pose
 
     def process(self, frames: Frames) -> Pose | None:
         """Filters, recording, calibration and publishing for one batch of complete frames."""

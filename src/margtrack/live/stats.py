@@ -17,7 +17,8 @@ Definitions (all times on the :func:`time.perf_counter` clock, s):
   processed, and input lines the source rejected.
 - *sensor health*: each sensor's received rate over the last ``window_s`` of data time, its
   dropped samples, and the magnetic-norm check ``|m| / |m_ref|`` of the latest sample against
-  the sensor's median norm over its first second (``mag_ok`` within ``mag_norm_tol``).
+  the sensor's median norm over its first second (``mag_ok`` within ``mag_norm_tol``;
+  :mod:`margtrack.live.field_norm`).
 - *per-sensor counts* (:class:`SensorHealth`, the headless summary and the page):
   ``received`` samples that reached the engine, ``processed`` samples the filter ran on
   (not held), ``lost`` samples never received (sequence-number or timestamp gaps),
@@ -40,6 +41,8 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+from margtrack.live.field_norm import FieldNormReference
 
 Array = NDArray[np.float64]
 
@@ -145,10 +148,7 @@ class StatsMeter:
         # per batch: (last frame time, frames N, (S,) held samples or None when none was):
         # O(1) per batch while nothing is held, whatever S
         self._received: deque[tuple[float, int, NDArray[np.int64] | None]] = deque()
-        self._mag_first: list[Array] = []
-        self._mag_first_until = np.inf
-        self._mag_ref = np.full(n, np.nan)
-        self._mag_ref_missing = True  # some sensor has no reference norm yet
+        self._mag_ref = FieldNormReference(n)
         self._mag_now = np.full(n, np.nan)
         #: (S, 3) the latest sample's field, kept as a view (a source does not overwrite the
         #: samples it handed over): its norm is taken only when :meth:`health` asks
@@ -167,18 +167,8 @@ class StatsMeter:
         while self._received and self._received[0][0] < t_s[-1] - self.window_s:
             self._received.popleft()
         if mag is not None:
-            if self._mag_ref_missing:
-                norms = np.linalg.norm(mag, axis=2)  # (S, N)
-                self._mag_now, self._mag_latest = norms[:, -1], None
-                if not self._mag_first:
-                    self._mag_first_until = float(t_s[0]) + 1.0
-                self._mag_first.append(norms)
-                if t_s[-1] >= self._mag_first_until:
-                    self._mag_ref = np.median(np.concatenate(self._mag_first, axis=1), axis=1)
-                    self._mag_ref_missing = bool(np.isnan(self._mag_ref).any())
-                    self._mag_first = []
-            else:  # only the latest sample's norm is needed once the reference is known
-                self._mag_latest = mag[:, -1]
+            self._mag_ref.feed(t_s, mag)
+            self._mag_latest = mag[:, -1]  # its norm is taken only when health() asks
 
     def published(self, latency_s: float) -> None:
         """Record one published pose."""
@@ -200,7 +190,7 @@ class StatsMeter:
         latest = self._mag_latest
         if latest is not None:
             self._mag_now = np.linalg.norm(latest, axis=1)
-        ratio = self._mag_now / self._mag_ref
+        ratio = self._mag_now / self._mag_ref.norm
         ok = np.abs(ratio - 1.0) <= self.mag_norm_tol  # NaN (no reference yet) -> False
         return SensorHealth(self.names, np.asarray(rate, float), dropped.copy(), ratio, ok,
                             **extra)  # type: ignore[arg-type]
