@@ -125,6 +125,35 @@ def test_batch_buffers_copy_frame_major_batches_value_for_value(dtype):
         assert np.array_equal(np.signbit(copied), np.signbit(batch))
 
 
+@pytest.mark.kernel
+def test_batch_buffers_copy_a_large_batch_on_threads_value_for_value(monkeypatch):
+    # the three inputs of a batch in one call, the sensors split among three threads (at
+    # uneven bounds: 10 sensors), a missing field left None
+    from margtrack.live import buffers
+
+    monkeypatch.setattr(buffers, "THREADED_COPY_MIN_SAMPLES", 40)
+    started = []
+    thread_init = buffers.threading.Thread.__init__
+
+    def counted(self, *args, **kwargs):
+        started.append(kwargs.get("name"))
+        thread_init(self, *args, **kwargs)
+
+    monkeypatch.setattr(buffers.threading.Thread, "__init__", counted)
+    buf = BatchBuffers(10, {k: (3, np.float64) for k in ("gyr", "acc", "mag")})
+    memory = np.random.default_rng(2).normal(size=(2, 4, 10, 3))
+    memory[0, 3, 9, 2], memory[1, 0, 0, 0] = np.nan, -np.inf
+    gyr, acc = (np.swapaxes(m, 0, 1) for m in memory)  # (10, 4, 3) views, frame-major
+    out = buf.contiguous_all([("gyr", gyr), ("acc", acc), ("mag", None)], n_threads=3)
+    assert started == ["margtrack-copy-1", "margtrack-copy-2"]
+    assert out[2] is None and all(o.flags.c_contiguous for o in out[:2])
+    np.testing.assert_array_equal(out[0], gyr)
+    np.testing.assert_array_equal(out[1], acc)
+    started.clear()  # below the threshold: one thread, the same values
+    small = buf.contiguous_all([("gyr", gyr[:, :1])], n_threads=3)[0]
+    assert started == [] and np.array_equal(small, gyr[:, :1])
+
+
 def _engine_run(hot, strict):
     duration = 4.0
     names = tuple(f"s{i}" for i in range(10))

@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 from margtrack.estimator.compiled import CompiledEstimator
 from margtrack.estimator.contract import Estimator
 from margtrack.estimator.flags import DATA_FLAGS, Flag
+from margtrack.estimator.sensor_threads import thread_count
 from margtrack.live.assembler import Frames
 from margtrack.live.buffers import BatchBuffers
 from margtrack.live.isolation import finish_raised, reinitialise, restart, run_each
@@ -145,9 +146,9 @@ class SensorFilters:
         buf, n = self._buffers, t.shape[0]
         est = self.estimator
         assert isinstance(est, CompiledEstimator)
-        gyr = buf.contiguous("gyr", gyr) if est.uses_gyr else None
-        acc = buf.contiguous("acc", acc)
-        mag = None if mag is None else buf.contiguous("mag", mag)
+        gyr, acc, mag = buf.contiguous_all(
+            [("gyr", gyr if est.uses_gyr else None), ("acc", acc), ("mag", mag)],
+            n_threads=thread_count())
         q, x, flags = buf.get("q", n), buf.get("x", n), buf.get("flags", n)
         try:
             est.run_into(np.ascontiguousarray(t, dtype=np.float64), gyr, acc, mag, q, x, flags,
