@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from margtrack.live.field_norm import REF_SAMPLES, REF_SPAN_S, FieldNormReference
 
@@ -16,6 +17,7 @@ def _feed(ref: FieldNormReference, t: np.ndarray, mag: np.ndarray, sizes: list[i
         i, k = j, k + 1
 
 
+@pytest.mark.kernel
 def test_reference_is_the_median_of_the_spaced_norms_of_the_first_second() -> None:
     rng = np.random.default_rng(3)
     n = 300
@@ -41,6 +43,7 @@ def test_reference_is_the_median_of_the_spaced_norms_of_the_first_second() -> No
         assert ref.norm[0] < 100.0
 
 
+@pytest.mark.kernel
 def test_missing_fields_are_skipped_and_a_dead_sensor_stays_unknown() -> None:
     n = 200
     t = np.arange(n) / 100.0
