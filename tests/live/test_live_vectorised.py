@@ -94,8 +94,16 @@ def test_people_pose_refuses_bad_input_naming_it():
     index, off, roots = np.arange(3)[None], quat.identity((1, 3)), np.zeros((1, 3))
     bad = q.copy()
     bad[1] = [1.0, 1.0, 0.0, 0.0]
-    with pytest.raises(ValueError, match=r"q_sensor\[1\] is not a unit quaternion"):
+    bad[2] = [2.0, 0.0, 0.0, 0.0]  # the first of two is named, with its norm
+    with pytest.raises(ValueError, match=r"q_sensor\[1\] is not a unit quaternion "
+                                         r"\(norm 1\.4142135623730951\)"):
         people_pose(skeleton, bad, index, off, roots)
+    bad[2] = [1.0 + 5e-7, 0.0, 0.0, 0.0]  # within the tolerance (1e-6): accepted
+    bad[1] = [0.0, 0.0, 0.0, np.inf]
+    with pytest.raises(ValueError, match=r"q_sensor\[1\] is not a unit quaternion \(norm inf"):
+        people_pose(skeleton, bad, index, off, roots)
+    bad[1] = q[1]
+    assert people_pose(skeleton, bad, index, off, roots)[0].shape == (1, 3, 4)
     bad[1] = np.nan
     with pytest.raises(ValueError, match=r"q_sensor\[1\] is not a unit"):
         people_pose(skeleton, bad, index, off, roots)

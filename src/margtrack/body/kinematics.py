@@ -125,6 +125,7 @@ def people_pose(
     -------
     q_segment (A, K, 4), joints_m (A, K, 3) m, ends_m (A, K, 3) m.
     """
+    from margtrack.kernels.body_pose import first_non_unit
     from margtrack.kernels.body_pose import people_pose as kernel
 
     q = np.ascontiguousarray(q_sensor, dtype=np.float64)
@@ -141,11 +142,9 @@ def people_pose(
     if idx.size and (idx.min() < 0 or idx.max() >= q.shape[0]):
         raise ValueError(f"index must name sensors 0..{q.shape[0] - 1}, got "
                          f"{int(idx.min())}..{int(idx.max())}")
-    norm = np.sqrt(np.einsum("ij,ij->i", q, q))
-    bad = ~(np.abs(norm - 1.0) <= UNIT_NORM_TOLERANCE)  # non-finite too
-    if bad.any():
-        s = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"q_sensor[{s}] is not a unit quaternion (norm {float(norm[s])!r}); "
+    s, norm = first_non_unit(q, UNIT_NORM_TOLERANCE)  # non-finite too
+    if s >= 0:
+        raise ValueError(f"q_sensor[{s}] is not a unit quaternion (norm {float(norm)!r}); "
                          "normalise it (margtrack.quaternion.normalize)")
     q_segment = np.empty(off.shape)
     joints = np.empty(roots.shape[:1] + (n_seg, 3))
