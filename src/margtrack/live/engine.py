@@ -321,8 +321,10 @@ class Engine:
         pose = None
         if tick > self._last_tick:
             self._last_tick = tick
-            pose = Pose.of(self._frame_index, frames.t_s[-1], frames.arrival_s[-1], q[:, -1],
-                           self.avatars, self._body.offsets)
+            # the batch's last orientations: the filters keep them contiguous (q_last);
+            # q[:, -1] is a strided view (its copy 0.89 ms against 0.33 at 150,000 sensors)
+            pose = Pose.of(self._frame_index, frames.t_s[-1], frames.arrival_s[-1],
+                           self._filters.q_last, self.avatars, self._body.offsets)
         t2 = time.perf_counter()
         if pose is not None:
             self._publish(pose)
