@@ -71,6 +71,35 @@ def test_run_into_equals_run_to_the_bit_batch_after_batch(method):
     assert seen & Flag.GAP and seen & Flag.ACC_IGNORED  # flagged as by run
 
 
+@pytest.mark.parametrize(("method", "n_sensors"), [("robust", 3), ("robust", 40),
+                                                   ("bachmann", 40), ("gradient", 40),
+                                                   ("ekf", 3)])
+def test_run_into_without_the_extra_outputs_equals_run(method, n_sensors):
+    # x_out (S, N, 0): the lockstep blocks (S >= 16) write none, the per-sensor kernels a
+    # scratch array; orientations, flags and state as run's, batch after batch
+    n, batch = 40, 8
+    gyr, acc, mag = _signals(n_sensors, n, seed=5)
+    t = np.arange(n) / RATE_HZ
+    t[24:] += 0.5
+    ref, hot = methods.create(method, rate_hz=RATE_HZ), methods.create(method, rate_hz=RATE_HZ)
+    assert hot._in_lanes(n_sensors) == (n_sensors >= 16 and method != "ekf")
+    q, flags = np.empty((n_sensors, batch, 4)), np.empty((n_sensors, batch), dtype=np.uint16)
+    none = np.empty((n_sensors, batch, 0))
+    for a in range(0, n, batch):
+        g, ac, m = (np.ascontiguousarray(v[:, a:a + batch]) for v in (gyr, acc, mag))
+        est = ref.run(gyr=g, acc=ac, mag=m, t=t[a:a + batch], check_units=False)
+        hot.run_into(t[a:a + batch].copy(), g, ac, m, q, none, flags)
+        np.testing.assert_array_equal(q, est.quat)
+        np.testing.assert_array_equal(flags, est.flags)
+        rows = hot.state.rows.copy()
+        if hasattr(hot.kernel, "E_GEN"):  # the generation of each estimator's coefficients
+            rows[:, hot.kernel.E_GEN] = ref.state.rows[:, hot.kernel.E_GEN]
+        np.testing.assert_array_equal(rows, ref.state.rows)
+    with pytest.raises(ValueError, match=r"x_out must be C-contiguous float64 of shape "
+                                         rf"\({n_sensors}, 8, {hot.run_width}\)"):
+        hot.run_into(t[:batch] + 1.0, g, ac, m, q, np.empty((n_sensors, batch, 1)), flags)
+
+
 def test_run_into_refuses_buffers_of_the_wrong_shape_or_layout_naming_them():
     est = methods.create("robust", rate_hz=RATE_HZ)
     gyr, acc, mag = (v[:, :4].copy() for v in _signals(3, 24))

@@ -24,10 +24,12 @@ The hot path: a compiled method runs through
 :meth:`~margtrack.estimator.compiled.CompiledEstimator.run_into`, the same kernel call as
 ``run`` without its copies: inputs copied (only if not contiguous) and outputs written
 into arrays reused from batch to batch (:class:`~margtrack.live.buffers.BatchBuffers`),
-the state advanced in place. If that call raises, the sensors the kernel finished keep
-their results, the one it stopped in fails alone and the untouched ones run one by one
-(:func:`~margtrack.live.isolation.finish_raised`). Other methods go through ``run``. The
-orientations returned are valid until the next batch (the engine copies what it keeps).
+the state advanced in place; the method's extra outputs, which the engine does not use,
+are not asked for (the lockstep kernels then skip writing them). If that call raises, the
+sensors the kernel finished keep their results, the one it stopped in fails alone and the
+untouched ones run one by one (:func:`~margtrack.live.isolation.finish_raised`). Other
+methods go through ``run``. The orientations returned are valid until the next batch (the
+engine copies what it keeps).
 """
 
 from __future__ import annotations
@@ -72,8 +74,7 @@ class SensorFilters:
         if self._hot:
             self._buffers = BatchBuffers(n_sensors, {
                 "gyr": (3, np.float64), "acc": (3, np.float64), "mag": (3, np.float64),
-                "q": (4, np.float64), "x": (estimator.run_width, np.float64),
-                "flags": (0, np.uint16),
+                "q": (4, np.float64), "flags": (0, np.uint16),
             })
 
     def run(self, frames: Frames) -> tuple[Array, NDArray[np.uint16]]:
@@ -149,10 +150,12 @@ class SensorFilters:
         gyr, acc, mag = buf.contiguous_all(
             [("gyr", gyr if est.uses_gyr else None), ("acc", acc), ("mag", mag)],
             n_threads=thread_count())
-        q, x, flags = buf.get("q", n), buf.get("x", n), buf.get("flags", n)
+        q, flags = buf.get("q", n), buf.get("flags", n)
+        no_outputs = np.empty((self.n_sensors, n, 0))  # the method's extra outputs: unused
         try:
-            est.run_into(np.ascontiguousarray(t, dtype=np.float64), gyr, acc, mag, q, x, flags,
-                         self._clock, parallel=self.n_sensors * n >= LIVE_PARALLEL_MIN_SAMPLES)
+            est.run_into(np.ascontiguousarray(t, dtype=np.float64), gyr, acc, mag, q, no_outputs,
+                         flags, self._clock,
+                         parallel=self.n_sensors * n >= LIVE_PARALLEL_MIN_SAMPLES)
         except Exception as exc:  # one sensor's fault: it fails alone, the others go on
             finish_raised(est, t, gyr, acc, mag, self.q_last, self._clock, q, flags, exc,
                           lambda s, e: self._failed(s, f"filter raised {e!r}"))
