@@ -8,10 +8,9 @@ the next batch of N frames, run in *one* multi-sensor kernel call on (S, N, 3) a
 samples; a backlog is run in batches of at most ``MAX_BATCH_FRAMES`` (the kernels' best
 rate per sample, and a pose published between them), not in one ever larger batch whose
 fresh buffers cost page faults that put the engine further behind. Other threads talk to
-the engine through thread-safe methods (:meth:`set_params`,
-:meth:`request_calibration`, :meth:`start_recording`/:meth:`stop_recording`,
-:meth:`subscribe`, :meth:`stats`); :meth:`stop` (or leaving the ``with`` block) joins the
-worker and closes the source.
+the engine through thread-safe methods (:meth:`set_params`, :meth:`request_calibration`,
+:meth:`start_recording`/:meth:`stop_recording`, :meth:`subscribe`, :meth:`stats`);
+:meth:`stop` (or leaving the ``with`` block) joins the worker and closes the source.
 Without :meth:`start`, :meth:`process` runs the same work synchronously. No module-level
 state: engines are independent.
 
