@@ -66,9 +66,9 @@ Array = NDArray[np.float64]
 
 __all__ = ["MAX_BATCH_FRAMES", "Engine", "Pose"]
 
-#: frames of all sensors run in one batch at most (module docstring): from 100,000
-#: sensors, 8 frames a call is the kernels' best rate (``benchmarks/live_scale.py``'s batch
-#: scan: 1.5x that of 1 frame; 16 frames is slower again, the batch outgrowing the caches)
+#: frames of all sensors run in one batch at most (module docstring): at 100,000 sensors
+#: 8 frames a call run at 1.5-2.3x the rate of 1 frame (``benchmarks/live_scale.py``'s batch
+#: scan); 16 frames gained at most 6 % more (``bachmann``) or lost 18 % (``robust``)
 MAX_BATCH_FRAMES = 8
 
 
