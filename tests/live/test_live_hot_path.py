@@ -158,17 +158,19 @@ def test_batch_buffers_copy_frame_major_batches_value_for_value(dtype):
 def test_batch_buffers_copy_a_large_batch_on_threads_value_for_value(monkeypatch):
     # the three inputs of a batch in one call, the sensors split among three threads (at
     # uneven bounds: 10 sensors), a missing field left None
+    import threading
+
     from margtrack.live import buffers
 
     monkeypatch.setattr(buffers, "THREADED_COPY_MIN_SAMPLES", 40)
     started = []
-    thread_init = buffers.threading.Thread.__init__
+    thread_init = threading.Thread.__init__
 
     def counted(self, *args, **kwargs):
         started.append(kwargs.get("name"))
         thread_init(self, *args, **kwargs)
 
-    monkeypatch.setattr(buffers.threading.Thread, "__init__", counted)
+    monkeypatch.setattr(threading.Thread, "__init__", counted)
     buf = BatchBuffers(10, {k: (3, np.float64) for k in ("gyr", "acc", "mag")})
     memory = np.random.default_rng(2).normal(size=(2, 4, 10, 3))
     memory[0, 3, 9, 2], memory[1, 0, 0, 0] = np.nan, -np.inf

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["run_threaded", "thread_count"]
+__all__ = ["in_threads", "run_threaded", "thread_count"]
 
 
 def thread_count() -> int:
@@ -60,24 +60,37 @@ def run_threaded(
         return
     edges = [min(n_sensors, blocks * k // n_threads * align) for k in range(n_threads + 1)]
     clocks = [clock.copy() for _ in range(n_threads)]
-    errors: list[BaseException | None] = [None] * n_threads
 
     def part(k: int) -> None:
         a, b = edges[k], edges[k + 1]
+        run(rows[a:b], clocks[k], coefs, t, gyr[a:b], acc[a:b], mag[a:b], has, q_out[a:b],
+            x_out[a:b], flags_out[a:b])
+
+    try:
+        in_threads(part, n_threads, "margtrack-sensors")
+    finally:
+        clock[:] = clocks[0]
+
+
+def in_threads(part: Callable[[int], None], n_threads: int, name: str) -> None:
+    """``part(k)`` for k = 0 .. n_threads - 1 at the same time: part 0 in the caller's
+    thread, the others in threads named ``name-k``. A part that raises does not stop the
+    others; once all have ended, the first error is raised."""
+    errors: list[BaseException | None] = [None] * n_threads
+
+    def guarded(k: int) -> None:
         try:
-            run(rows[a:b], clocks[k], coefs, t, gyr[a:b], acc[a:b], mag[a:b], has, q_out[a:b],
-                x_out[a:b], flags_out[a:b])
+            part(k)
         except BaseException as exc:  # raised in the caller's thread below
             errors[k] = exc
 
-    threads = [threading.Thread(target=part, args=(k,), name=f"margtrack-sensors-{k}",
-                                daemon=True) for k in range(1, n_threads)]
+    threads = [threading.Thread(target=guarded, args=(k,), name=f"{name}-{k}", daemon=True)
+               for k in range(1, n_threads)]
     for thread in threads:
         thread.start()
-    part(0)
+    guarded(0)
     for thread in threads:
         thread.join()
-    clock[:] = clocks[0]
     for exc in errors:
         if exc is not None:
             raise exc

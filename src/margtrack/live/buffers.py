@@ -17,12 +17,12 @@ one thread, 0.72 on two), a quarter of the live engine's time at that scale.
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import DTypeLike, NDArray
 
+from margtrack.estimator.sensor_threads import in_threads
 from margtrack.kernels.frames_copy import frames_to_sensors
 
 __all__ = ["BatchBuffers"]
@@ -102,10 +102,4 @@ def _copy_threaded(moves: list[tuple[NDArray[np.generic], NDArray[np.generic]]],
         for frames, out in moves:
             frames_to_sensors(frames[:, a:b], out[a:b])
 
-    threads = [threading.Thread(target=part, args=(k,), name=f"margtrack-copy-{k}",
-                                daemon=True) for k in range(1, n_threads)]
-    for thread in threads:
-        thread.start()
-    part(0)
-    for thread in threads:
-        thread.join()
+    in_threads(part, n_threads, "margtrack-copy")
