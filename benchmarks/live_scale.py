@@ -252,14 +252,18 @@ def tried(method: str, base: tuple[np.ndarray, ...], n_people: int, seconds: flo
 
 def search(method: str, base: tuple[np.ndarray, ...], seconds: float, start: int,
            max_people: int) -> dict | None:
-    """Largest sustained people count by doubling, then bisection (module docstring)."""
+    """Largest sustained people count by doubling (the last step capped at ``max_people``),
+    then bisection (module docstring)."""
     n, best, worst = start, None, None
-    while n <= max_people:
+    while True:
         r = tried(method, base, n, seconds)
         if not r["ok"]:
             worst = n
             break
-        best, n = r, n * 2
+        best = r
+        if n >= max_people:
+            break
+        n = min(2 * n, max_people)
     lo = best["people"] if best else 0
     hi = worst if worst else lo
     for _ in range(3):
