@@ -11,7 +11,9 @@ __all__ = ["feed_norms"]
 
 @njit(cache=True, inline="always")
 def _median_in_place(values):
-    """The median of an odd number of values, sorting them in place (insertion sort)."""
+    """The median of an odd number of values, sorting them in place (insertion sort: for
+    15 values per sensor, numba's ``ndarray.sort`` took 48 ms for 118,125 sensors against
+    18, ``np.median`` 35)."""
     for i in range(1, values.shape[0]):
         v = values[i]
         j = i - 1
