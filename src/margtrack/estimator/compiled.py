@@ -334,6 +334,7 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         """
         n_sensors, n = acc.shape[0], t.shape[0]
         width = self.run_width
+        x_width = 0 if x_out.shape[2:] == (0,) else width  # (S, N, 0): not wanted
         if self.uses_gyr and gyr is None:
             raise ValueError(f"method {self.name!r} needs gyroscope data (gyr)")
         gyr = gyr if self.uses_gyr else None  # ignored, as by run
@@ -343,8 +344,7 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         for name, arr, shape, dtype in (
             *((nm, a, (n_sensors, n, 3), np.float64) for nm, a in signals),
             ("q_out", q_out, (n_sensors, n, 4), np.float64),
-            ("x_out", x_out, (n_sensors, n, width if x_out.shape[2:] != (0,) else 0),
-             np.float64),
+            ("x_out", x_out, (n_sensors, n, x_width), np.float64),
             ("flags_out", flags_out, (n_sensors, n), np.uint16),
         ):
             if arr.shape != shape or arr.dtype != dtype or not arr.flags.c_contiguous:
@@ -366,8 +366,8 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         has = (mag is not None) | (self._has_gyr_bit if gyr is not None else 0)
         if parallel is None:
             parallel = n_sensors * n >= PARALLEL_MIN_SAMPLES
-        if x_out.shape[2] != width and not self._in_lanes(n_sensors):
-            x_out = np.empty((n_sensors, n, width))  # (not wanted: the kernel writes them)
+        if x_width != width and not self._in_lanes(n_sensors):
+            x_out = np.empty((n_sensors, n, width))  # the per-sensor kernels write them all
         run = self._series_kernel(n_sensors, parallel)
         run(
             state.rows, state.clock, self._coefs, _read_only(np.ascontiguousarray(t)),
