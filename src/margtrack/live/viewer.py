@@ -226,13 +226,15 @@ class LiveViewer:
 
     def _panels(self) -> None:
         engine = self.engine
+        # whether it ended, before its stats: read after, they hold why it ended (read
+        # before, a stop in between showed a failed engine as a source that ended)
+        ended = engine.wait(0)  # the source is exhausted or the engine stopped
         st = engine.stats()
         self._status.content = status_text(st, self.poses_shown, self._session_s,
                                            self._message)
         # the engine's own failure (B1's engine_error), else an error text naming a stop
         fatal = getattr(st, "engine_error", None) or (
             st.error if st.error.startswith("engine stopped") else None)
-        ended = engine.wait(0)  # the source is exhausted or the engine stopped
         if ended and not self._notice.visible:
             self._notice.content = end_notice(st, self._session_s, fatal,
                                               replay=hasattr(self.source, "loop"),
