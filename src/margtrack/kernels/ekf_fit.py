@@ -5,11 +5,11 @@ iteration, safeguard and stopping rules, from the same helpers, so the same quat
 rounding; tests compare them) specialised for the filter's per-sample use:
 
 - inline (the general solver is a called function, three calls deep per sample);
-- the normal equations (``JᵀJ``, ``Jᵀε`` and their LDLᵀ solve, 001 eq. 22) are formed at
-  an iterate only when the next update will be taken: the general solver forms them at
-  every evaluation of the criterion, also at the last iterate (whose update the iteration
-  cap discards) and at rejected halvings. With the filter's cap of 2 that is two
-  solves per sample instead of three.
+- the update (001 eq. 22, solved in closed form: ``gauss_newton._gauss_newton_delta``)
+  is computed at an iterate only when it will be taken: the general solver computes it
+  at every evaluation of the criterion, also at the last iterate (whose update the
+  iteration cap discards) and at rejected halvings. With the filter's cap of 2 that is
+  two updates per sample instead of three.
 
 Conventions as in :mod:`margtrack.kernels.gauss_newton`: unit body accelerometer ĝ and
 magnetometer m̂, unit earth up u and field reference h, ``Q = |ε_g|² + ρ²|ε_m|²``
@@ -23,9 +23,8 @@ import math
 from margtrack.kernels.gauss_newton import (
     MAX_HALVINGS,
     PROGRESS_FLOOR,
-    _normal_terms,
+    _gauss_newton_delta,
     _pair_terms,
-    _solve_symmetric,
 )
 from margtrack.kernels.jit import njit
 
@@ -45,13 +44,7 @@ def _residuals(gx, gy, gz, mx, my, mz, ux, uy, uz, hx, hy, hz, w, x, y, z, rho2)
 @njit(cache=True, inline="always")
 def _update(eg, em, rho2, w, x, y, z):
     """The Gauss-Newton update from n (001 eq. 22): (ok, n + Δ), as ``gauss_newton._step``."""
-    g = _normal_terms(1.0, eg[0], eg[1], eg[2], eg[3], eg[4], eg[5], eg[6])
-    h = _normal_terms(rho2, em[0], em[1], em[2], em[3], em[4], em[5], em[6])
-    ok, d0, d1, d2, d3 = _solve_symmetric(
-        g[0] + h[0], g[1] + h[1], g[2] + h[2], g[3] + h[3], g[4] + h[4],
-        g[5] + h[5], g[6] + h[6], g[7] + h[7], g[8] + h[8], g[9] + h[9],
-        -(g[10] + h[10]), -(g[11] + h[11]), -(g[12] + h[12]), -(g[13] + h[13]),
-    )
+    ok, d0, d1, d2, d3 = _gauss_newton_delta(rho2, eg, em)
     return ok, w + d0, x + d1, y + d2, z + d3
 
 
