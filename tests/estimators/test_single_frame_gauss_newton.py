@@ -80,6 +80,49 @@ def test_gauss_newton_step_is_001_eq_22_with_a_finite_difference_jacobian(rho):
     assert q == pytest.approx(eps @ eps, rel=1e-13)
 
 
+def _jacobian_exact(n, g, m, rho):
+    """J = ∂ε/∂n from ∂(n ⊗ v ⊗ n*)/∂n_k = e_k ⊗ v ⊗ n* + n ⊗ v ⊗ e_k*, in numpy."""
+    def column(e):
+        def d(v):
+            pv = np.r_[0.0, v]
+            return -(quat.multiply(quat.multiply(e, pv), quat.conjugate(n))
+                     + quat.multiply(quat.multiply(n, pv), quat.conjugate(e)))[1:]
+        return np.r_[d(g), rho * d(m)]
+    return np.array([column(e) for e in np.eye(4)]).T
+
+
+def test_gauss_newton_update_in_closed_form_solves_the_formed_normal_equations():
+    """The step's closed form (Woodbury on JᵀJ = 4(c I - U Uᵀ)) against numpy's solve of
+    the normal equations formed from the exact Jacobian: random vectors that do not fit one
+    rotation, guesses of any norm and field weights from 0.1 to 3."""
+    rng = np.random.default_rng(11)
+    worst = 0.0
+    for _ in range(200):
+        g, m = _unit(rng.normal(size=3)), _unit(rng.normal(size=3))
+        n = rng.normal(size=4) * rng.uniform(0.3, 3.0)
+        rho = rng.uniform(0.1, 3.0)
+        ok, *n_new, _ = gauss_newton_step(*g, *m, *UP, *FIELD, *n, rho)
+        J = _jacobian_exact(n, g, m, rho)
+        expected = n - np.linalg.solve(J.T @ J, J.T @ _residual(n, g, m, rho))
+        assert ok
+        worst = max(worst, np.abs(np.array(n_new) - expected).max() / np.abs(expected).max())
+    assert worst < 1e-9
+
+
+@pytest.mark.parametrize("rho", [1.0, 0.0])
+def test_gauss_newton_update_is_singular_for_parallel_vectors_or_no_field_weight(rho):
+    """JᵀJ is singular when the body vectors are parallel (its 2 x 2 Woodbury block has
+    determinant ρ² D, D = 0) or ρ = 0 (the field's rows vanish): no update, n unchanged."""
+    g = _unit(np.array([0.2, -0.4, 0.9]))
+    m = g if rho > 0.0 else _unit(np.array([0.5, 0.1, -0.3]))
+    n = np.array([0.9, 0.1, -0.3, 0.2])
+    ok, *n_new, _ = gauss_newton_step(*g, *m, *UP, *FIELD, *n, rho)
+    assert not ok
+    np.testing.assert_array_equal(n_new, n)
+    J = _jacobian_exact(n, g, m, rho)  # numpy agrees: a rank below 4
+    assert np.linalg.matrix_rank(J.T @ J, tol=1e-9 * np.abs(J.T @ J).max()) < 4
+
+
 def test_newton_uses_the_true_hessian_and_001_eq_26_as_printed_is_minus_half_of_it():
     q, g, m, rng = _problem(3)
     # 20 deg off, where the full Newton step decreases Q (no halving)
