@@ -51,7 +51,6 @@ on BROAD they take the mean total RMSE from 9.1 deg (filter as printed, tuned) t
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import math
 from dataclasses import dataclass
@@ -64,6 +63,7 @@ from margtrack import frames
 from margtrack.estimator import Estimate, Params, initial_orientation, param
 from margtrack.estimator.compiled import CompiledEstimator, CompiledState
 from margtrack.estimators.all_accelerometer import differential_acceleration, gravity_estimate
+from margtrack.filters._rest_null import with_output_types
 from margtrack.frames import STANDARD_GRAVITY_M_S2
 from margtrack.kernels import all_accelerometer as aa_kernel
 from margtrack.kernels import bias_kf as kernel
@@ -386,11 +386,8 @@ class BiasKalman(CompiledEstimator[BiasKalmanParams]):
 
     def _run_arrays(self, *args: Any, **kwargs: Any) -> Estimate:
         """The compiled run, with ``degenerate`` (S, N) int8 as before (the kernel writes
-        the code as a float output)."""
-        est = super()._run_arrays(*args, **kwargs)
-        outputs = dict(est.outputs)
-        outputs["degenerate"] = outputs["degenerate"][..., 0].astype(np.int8)
-        return dataclasses.replace(est, outputs=outputs)
+        the code as a float output; converted when first read)."""
+        return with_output_types(super()._run_arrays(*args, **kwargs), {"degenerate": np.int8})
 
 
 @dataclass(frozen=True)
