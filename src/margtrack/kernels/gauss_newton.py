@@ -59,9 +59,10 @@ PROGRESS_FLOOR = 1e-14
 MAX_HALVINGS = 8
 
 #: The 4 x 4 normal equations count as singular (the iteration stops and the sample is
-#: flagged) when their smallest eigenvalue is below this fraction of their largest
-#: (Gauss-Newton, :func:`_gauss_newton_delta`), or a pivot of their LDLᵀ below this
-#: fraction of their largest diagonal entry (Newton, :func:`_solve_symmetric`).
+#: flagged) when the product of their two smallest eigenvalues is below this fraction of
+#: the largest's square (Gauss-Newton, :func:`_gauss_newton_delta`), or a pivot of their
+#: LDLᵀ below this fraction of their largest diagonal entry (Newton,
+#: :func:`_solve_symmetric`).
 PIVOT_TOLERANCE = 1e-12
 
 
@@ -116,8 +117,9 @@ def _gauss_newton_delta(rho2, eg, em):
     cancellation). About 90 operations and two divisions where forming and factoring
     the equations took 200 and four; the same update to rounding (tests compare them).
     The equations' eigenvalues are 4c (twice) and 4λ with ``λ₁ + λ₂ = c``,
-    ``λ₁ λ₂ = ρ² D``: singular (``ok`` False) when ``ρ² D <= PIVOT_TOLERANCE c²``, the
-    smallest below that fraction of the largest (gravity along the field's direction).
+    ``λ₁ λ₂ = ρ² D``: singular (``ok`` False) when ``ρ² D <= PIVOT_TOLERANCE c²`` (the
+    smallest eigenvalue then at most twice that fraction of the largest): the two body
+    vectors parallel, or ρ = 0.
     """
     _, _, _, u0, p1, p2, p3 = eg
     u1, u2, u3 = -p1, -p2, -p3
