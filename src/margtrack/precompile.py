@@ -25,6 +25,7 @@ import os
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from typing import Any
 
 import numpy as np
 
@@ -152,6 +153,18 @@ def _compile_unit(name: str, params: dict[str, object]) -> float:
             os.environ["MARGTRACK_AOT"] = saved
 
 
+def _use_frames(est: Any, lanes: list[np.ndarray]) -> None:
+    """The live engine's call: ``run_into`` on frame-major inputs (the lockstep blocks'
+    frame entry, when the method has one)."""
+    n_sensors, n = lanes[0].shape[:2]
+    if not est.takes_frames(n_sensors):
+        return
+    frames = [np.ascontiguousarray(np.swapaxes(x, 0, 1)) for x in lanes]
+    est.run_into(np.arange(n) / 100.0, *frames, np.empty((n_sensors, n, 4)),
+                 np.empty((n_sensors, n, 0)), np.empty((n_sensors, n), dtype=np.uint16),
+                 frame_major=True)
+
+
 def _use_variant(name: str, params: dict[str, object], gyr: np.ndarray, acc: np.ndarray,
                  mag: np.ndarray) -> None:
     """``run`` and ``update`` of method ``name`` with ``params``, as the module says."""
@@ -163,6 +176,7 @@ def _use_variant(name: str, params: dict[str, object], gyr: np.ndarray, acc: np.
         lanes = [np.tile(x, (LANES_MIN_SENSORS, 1, 1)) for x in (gyr, acc, mag)]
         methods.create(name, params).run(gyr=lanes[0], acc=lanes[1], mag=lanes[2],
                                          rate_hz=100.0)
+        _use_frames(methods.create(name, params), lanes)
     many = [np.stack([x, x]) for x in (gyr, acc, mag)]
     if not getattr(methods.get(name), "offline", False):
         one = methods.create(name, params, rate_hz=100.0)

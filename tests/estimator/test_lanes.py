@@ -186,7 +186,8 @@ def test_lockstep_block_is_vectorised(name):
     # the one inspected
     for a in (gyr, acc, mag):
         a.flags.writeable = False
-    kernel.lanes_block(st, rows, 0, coefs, dts, ks, tflags, gyr, acc, mag, 3, q, x, flags)
+    kernel.lanes_block(st, rows, 0, coefs, dts, ks, tflags, gyr, acc, mag, 3, q, x, flags, False,
+                       0)
     assert np.isfinite(q).all()
     llvm_ir = jit.compiled_ir(kernel.lanes_block)
     assert llvm_ir.count("fmul <8 x double>") > 50
@@ -227,11 +228,11 @@ def _null_rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
 
 
 def _null_block(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
-                flags_out):
+                flags_out, frame_major, s_in):
     scoef = jit.to_fixed_tuple(coefs, N_SCOEF)
     contract_lanes.block(_null_start_at, _null_step_at, _null_hold_at, _null_rare_at,
                          N_CONTRACT, 0, st, rows, s0, scoef, scoef, dts, ks, tflags, gyr, acc,
-                         mag, has, q_out, x_out, flags_out)
+                         mag, has, q_out, x_out, flags_out, frame_major, s_in)
 
 
 @pytest.mark.kernel
@@ -258,7 +259,7 @@ def test_lockstep_screening_stores_unmasked(capfd):
         flags = np.empty((gyr.shape[0], t.size), np.uint16)
         block(np.empty((N_CONTRACT + contract_lanes.N_B) * contract_lanes.LANES), rows, 0,
               coefs, dts, ks, tflags, gyr, acc, mag, has, q, np.empty((gyr.shape[0], t.size, 0)),
-              flags)
+              flags, False, 0)
         sc = np.empty((gyr.shape[0], screen.N_SCREEN))
         screen.fresh(sc)
         outs = [np.empty_like(gyr) for _ in range(3)]

@@ -100,6 +100,44 @@ def test_run_into_without_the_extra_outputs_equals_run(method, n_sensors):
         hot.run_into(t[:batch] + 1.0, g, ac, m, q, np.empty((n_sensors, batch, 1)), flags)
 
 
+@pytest.mark.parametrize("method", ["robust", "bachmann", "gradient", "ekf"])
+@pytest.mark.parametrize("parallel", [False, True])
+def test_run_into_on_frame_major_inputs_equals_the_per_sensor_layout(method, parallel):
+    # (N, S, 3) inputs as the live sources deliver them: the lockstep blocks read them where
+    # they are (75 sensors: two full blocks and a partial one, split over threads at a block
+    # edge); ekf has no blocks and gets a copy. Bit for bit the per-sensor call's results,
+    # batch after batch, across a gap; the wrong layout named.
+    n_sensors, n, batch = 75, 40, 8
+    gyr, acc, mag = _signals(n_sensors, n, seed=9)
+    gyr[7, 13] = np.nan  # a screened sample in one sensor
+    t = np.arange(n) / RATE_HZ
+    t[24:] += 0.5
+    ref = methods.create(method, rate_hz=RATE_HZ)
+    hot = methods.create(method, rate_hz=RATE_HZ)
+    assert hot.takes_frames(n_sensors) == (method != "ekf")
+    q_ref, q = np.empty((n_sensors, batch, 4)), np.empty((n_sensors, batch, 4))
+    f_ref, f = (np.empty((n_sensors, batch), dtype=np.uint16) for _ in range(2))
+    none = np.empty((n_sensors, batch, 0))
+    for a in range(0, n, batch):
+        per_sensor = [np.ascontiguousarray(v[:, a:a + batch]) for v in (gyr, acc, mag)]
+        frames = [np.ascontiguousarray(np.swapaxes(v, 0, 1)) for v in per_sensor]
+        ref.run_into(t[a:a + batch].copy(), *per_sensor, q_ref, none, f_ref, parallel=parallel)
+        hot.run_into(t[a:a + batch].copy(), *frames, q, none, f, parallel=parallel,
+                     frame_major=True)
+        np.testing.assert_array_equal(q, q_ref)
+        np.testing.assert_array_equal(f, f_ref)
+        rows = hot.state.rows.copy()
+        if hasattr(hot.kernel, "E_GEN"):  # the generation of each estimator's coefficients
+            rows[:, hot.kernel.E_GEN] = ref.state.rows[:, hot.kernel.E_GEN]
+        np.testing.assert_array_equal(rows, ref.state.rows)
+        if a == 8:  # the NaN rate was flagged, at its sensor and sample only
+            assert f[7, 13 - a] & Flag.INVALID and not f[6, 13 - a] & Flag.INVALID
+    with pytest.raises(ValueError, match=rf"acc must be C-contiguous float64 of shape "
+                                         rf"\({batch}, {n_sensors}, 3\) \(frame-major\)"):
+        hot.run_into(t[:batch] + 9.0, *frames[:1], per_sensor[1], frames[2], q, none, f,
+                     frame_major=True)
+
+
 def test_run_into_refuses_buffers_of_the_wrong_shape_or_layout_naming_them():
     est = methods.create("robust", rate_hz=RATE_HZ)
     gyr, acc, mag = (v[:, :4].copy() for v in _signals(3, 24))

@@ -110,10 +110,14 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         return None if self._last_flags is None else self._last_flags.copy()
 
     # -- state ----------------------------------------------------------------------------
-    def _series_kernel(self, n_sensors: int, parallel: bool) -> Any:
+    def _series_kernel(self, n_sensors: int, parallel: bool, frame_major: bool = False) -> Any:
         """The kernel entry point that runs ``n_sensors`` sensors' series: in lockstep blocks
-        (LANES_MIN_SENSORS), over threads (``parallel``), or one sensor after the other."""
+        (LANES_MIN_SENSORS), over threads (``parallel``), or one sensor after the other;
+        ``frame_major``: lockstep blocks reading (N, S, 3) inputs (:meth:`takes_frames`)."""
         kernel = self.kernel
+        if frame_major:
+            return partial(run_threaded, jit.dispatcher(kernel.run_lanes_frames),
+                           align=kcl.LANES, frame_major=True, n_threads=None if parallel else 1)
         lanes = self._in_lanes(n_sensors)
         run = kernel.run_lanes if lanes else kernel.run
         if not parallel or n_sensors < 2:
@@ -124,6 +128,11 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
     def _in_lanes(self, n_sensors: int) -> bool:
         """Whether ``n_sensors`` run in lockstep blocks (``kernels/contract_lanes.py``)."""
         return n_sensors >= LANES_MIN_SENSORS and hasattr(self.kernel, "run_lanes")
+
+    def takes_frames(self, n_sensors: int) -> bool:
+        """Whether :meth:`run_into` reads frame-major inputs of ``n_sensors`` sensors where
+        they are (lockstep blocks), rather than from a per-sensor copy."""
+        return self._in_lanes(n_sensors) and hasattr(self.kernel, "run_lanes_frames")
 
     def _new_rows(self, n_sensors: int) -> CompiledState:
         rows = np.zeros((n_sensors, self.kernel.N_ROW))
@@ -312,6 +321,7 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         flags_out: NDArray[np.uint16],
         clock_before: Array | None = None,
         parallel: bool | None = None,
+        frame_major: bool = False,
     ) -> None:
         """:meth:`run` for the live engine: the state advanced in place, results in buffers.
 
@@ -331,8 +341,11 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         if given, receives it from before the call: what untouched sensors need to run
         again). With ``strict=True`` a flagged sample raises once every sensor finished.
         ``parallel``: sensors shared among threads (None: from PARALLEL_MIN_SAMPLES samples).
+        ``frame_major``: ``gyr``, ``acc``, ``mag`` are (N, S, 3) C-contiguous, a frame's
+        sensors together as the live sources deliver them; the lockstep blocks read them
+        where they are (:meth:`takes_frames`), other kernels from a per-sensor copy.
         """
-        n_sensors, n = acc.shape[0], t.shape[0]
+        n_sensors, n = (q_out if frame_major else acc).shape[0], t.shape[0]
         width = self.run_width
         x_width = 0 if x_out.shape[2:] == (0,) else width  # (S, N, 0): not wanted
         if self.uses_gyr and gyr is None:
@@ -341,15 +354,21 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         if mag is None and not self.mag_optional:
             raise ValueError(f"method {self.name!r} needs a magnetometer (mag)")
         signals = [(nm, a) for nm, a in (("acc", acc), ("gyr", gyr), ("mag", mag)) if a is not None]
+        in_shape = (n, n_sensors, 3) if frame_major else (n_sensors, n, 3)
         for name, arr, shape, dtype in (
-            *((nm, a, (n_sensors, n, 3), np.float64) for nm, a in signals),
+            *((nm, a, in_shape, np.float64) for nm, a in signals),
             ("q_out", q_out, (n_sensors, n, 4), np.float64),
             ("x_out", x_out, (n_sensors, n, x_width), np.float64),
             ("flags_out", flags_out, (n_sensors, n), np.uint16),
         ):
             if arr.shape != shape or arr.dtype != dtype or not arr.flags.c_contiguous:
+                layout = " (frame-major)" if frame_major and shape == in_shape else ""
                 raise ValueError(f"run_into: {name} must be C-contiguous {np.dtype(dtype)} of "
-                                 f"shape {shape}, got {arr.dtype} {arr.shape}")
+                                 f"shape {shape}{layout}, got {arr.dtype} {arr.shape}")
+        if frame_major and not self.takes_frames(n_sensors):  # a per-sensor copy
+            gyr, acc, mag = (None if v is None else np.ascontiguousarray(np.swapaxes(v, 0, 1))
+                             for v in (gyr, acc, mag))
+            frame_major = False
         if t.dtype != np.float64 or t.ndim != 1 or n == 0:
             raise ValueError(f"run_into: t must be float64 of shape (N,) N > 0, got {t.shape}")
         state = self._state
@@ -368,7 +387,7 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
             parallel = n_sensors * n >= PARALLEL_MIN_SAMPLES
         if x_width != width and not self._in_lanes(n_sensors):
             x_out = np.empty((n_sensors, n, width))  # the per-sensor kernels write them all
-        run = self._series_kernel(n_sensors, parallel)
+        run = self._series_kernel(n_sensors, parallel, frame_major)
         run(
             state.rows, state.clock, self._coefs, _read_only(np.ascontiguousarray(t)),
             _read_only(acc if gyr is None else gyr), _read_only(acc),

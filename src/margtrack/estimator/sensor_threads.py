@@ -43,11 +43,16 @@ def run_threaded(
     *,
     align: int = 1,
     n_threads: int | None = None,
+    frame_major: bool = False,
 ) -> None:
     """``run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out)`` over
     S sensors (the first axis of rows, gyr, acc, mag, q_out, x_out, flags_out), split into
     ``n_threads`` contiguous parts (default :func:`thread_count`) whose bounds are multiples
     of ``align`` sensors (a lockstep kernel's block).
+
+    With ``frame_major`` the inputs are (N, S, 3) and ``run`` a frame-major entry
+    (``run_lanes_frames``): each part gets them whole and its first sensor as a last
+    argument (a slice of their middle axis would be a strided array, another compilation).
 
     ``clock`` (1,) ends as one call over all the sensors leaves it. A part that raises
     leaves its sensors part-way; the others finish, then the first error is raised.
@@ -55,16 +60,21 @@ def run_threaded(
     n_sensors = rows.shape[0]
     blocks = -(-n_sensors // align)
     n_threads = max(1, min(thread_count() if n_threads is None else n_threads, blocks))
-    if n_threads == 1:
-        run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out)
-        return
     edges = [min(n_sensors, blocks * k // n_threads * align) for k in range(n_threads + 1)]
-    clocks = [clock.copy() for _ in range(n_threads)]
+    clocks = [clock] if n_threads == 1 else [clock.copy() for _ in range(n_threads)]
 
     def part(k: int) -> None:
         a, b = edges[k], edges[k + 1]
-        run(rows[a:b], clocks[k], coefs, t, gyr[a:b], acc[a:b], mag[a:b], has, q_out[a:b],
-            x_out[a:b], flags_out[a:b])
+        if frame_major:
+            run(rows[a:b], clocks[k], coefs, t, gyr, acc, mag, has, q_out[a:b], x_out[a:b],
+                flags_out[a:b], a)
+        else:
+            run(rows[a:b], clocks[k], coefs, t, gyr[a:b], acc[a:b], mag[a:b], has, q_out[a:b],
+                x_out[a:b], flags_out[a:b])
+
+    if n_threads == 1:
+        part(0)
+        return
 
     try:
         in_threads(part, n_threads, "margtrack-sensors")

@@ -366,12 +366,13 @@ def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
 
 @njit(cache=True, error_model="numpy", _nrt=False, vector_width=contract_lanes.VECTOR_WIDTH)
 def lanes_block(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
-                flags_out):
+                flags_out, frame_major, s_in):
     """One block of sensors in lockstep, vectorised across them (``contract_lanes.block``)."""
     # (plain global names: numba sees them as the constants to_fixed_tuple needs)
     scoef, coef = to_fixed_tuple(coefs, N_SCOEF), to_fixed_tuple(coefs[N_SCOEF:], N_COEF)
     contract_lanes.block(_start_at, _step_at, _hold_at, _rare_at, N_ROW, N_X, st, rows, s0, scoef,
-                         coef, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out)
+                         coef, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out,
+                         frame_major, s_in)
 
 
 #: slots per lane of :func:`lanes_block`'s buffer
@@ -383,7 +384,14 @@ def run_lanes(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out
     """:func:`run` by blocks of sensors in lockstep (``contract_lanes.run_blocks``); the same
     results."""
     contract_lanes.run_blocks(lanes_block, LANES_WIDTH, rows, clock, coefs, t, gyr, acc, mag, has,
-                              q_out, x_out, flags_out)
+                              q_out, x_out, flags_out, False, 0)
+
+
+@njit(cache=True, nogil=True)
+def run_lanes_frames(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out, s_in):
+    """:func:`run_lanes` on frame-major inputs (N, S', 3), the rows' sensors from ``s_in``."""
+    contract_lanes.run_blocks(lanes_block, LANES_WIDTH, rows, clock, coefs, t, gyr, acc, mag, has,
+                              q_out, x_out, flags_out, True, s_in)
 
 
 @njit(cache=True)
