@@ -139,10 +139,10 @@ def block(start_at, step_at, hold_at, rare_at, n_row, n_x, st, rows, s0, scoef, 
           tflags, gyr, acc, mag, has, q_out, x_out, flags_out, frame_major, s_in):
     """Sensors s0 .. s0 + LANES (fewer at the end) through all samples, in lockstep.
 
-    The inputs gyr, acc, mag are (S, N, 3), or with ``frame_major`` (N, S', 3) as the live
-    engine's sources deliver them (a frame's sensors together), sensor s at ``s_in + s``:
-    read where they are, no copy into the per-sensor layout first (the block gathers each
-    sample's lanes either way; frame-major, they are next to each other).
+    The inputs gyr, acc, mag are (S, N, 3) (``s_in`` 0), or with ``frame_major`` (N, S', 3)
+    as the live engine's sources deliver them (a frame's sensors together), sensor s at
+    ``s_in + s``: read where they are, no copy into the per-sensor layout first (the block
+    gathers each sample's lanes either way; frame-major, they are next to each other).
 
     ``st`` ((n_row + N_B + n_x) * LANES,) is the block's buffer, as scratch; ``n_row``,
     ``n_x`` the method's row and extra outputs widths (constants). For a kernel compiled
@@ -167,22 +167,14 @@ def block(start_at, step_at, hold_at, rare_at, n_row, n_x, st, rows, s0, scoef, 
         dt, k_ref, tf = dts[i], ks[i], tflags[i]
         # unsigned indices: numba adds no wraparound for a negative index to them
         iu = np.uint64(i)
-        if frame_major:
-            for lane in range(n):
-                su, lu = np.uint64(s_in + s0 + lane), np.uint64(lane)
-                for c in range(3):
-                    cu = np.uint64(c)
-                    st[np.uint64(i_in + c * lanes) + lu] = gyr[iu, su, cu]
-                    st[np.uint64(i_in + (3 + c) * lanes) + lu] = acc[iu, su, cu]
-                    st[np.uint64(i_in + (6 + c) * lanes) + lu] = mag[iu, su, cu]
-        else:
-            for lane in range(n):
-                su, lu = np.uint64(s0 + lane), np.uint64(lane)
-                for c in range(3):
-                    cu = np.uint64(c)
-                    st[np.uint64(i_in + c * lanes) + lu] = gyr[su, iu, cu]
-                    st[np.uint64(i_in + (3 + c) * lanes) + lu] = acc[su, iu, cu]
-                    st[np.uint64(i_in + (6 + c) * lanes) + lu] = mag[su, iu, cu]
+        for lane in range(n):
+            su, lu = np.uint64(s_in + s0 + lane), np.uint64(lane)
+            j0, j1 = (iu, su) if frame_major else (su, iu)  # (frame, sensor) or (sensor, frame)
+            for c in range(3):
+                cu = np.uint64(c)
+                st[np.uint64(i_in + c * lanes) + lu] = gyr[j0, j1, cu]
+                st[np.uint64(i_in + (3 + c) * lanes) + lu] = acc[j0, j1, cu]
+                st[np.uint64(i_in + (6 + c) * lanes) + lu] = mag[j0, j1, cu]
         if tf & screen.GAP:
             for lane in range(n):
                 st[K_READY * lanes + lane] = 0.0
