@@ -30,17 +30,12 @@ gravity change) it would be taken for a null. Start recordings still, as 000 doe
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Mapping
 from dataclasses import dataclass
-from functools import partial
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from margtrack.estimator import Estimate
-from margtrack.estimator.outputs import Deferred, Outputs
 from margtrack.kernels import rest_null as kernel
 
 Array = NDArray[np.float64]
@@ -190,22 +185,3 @@ def check_rows(state: Any, n_row: int, q_offset: int, ready: NDArray[np.bool_]) 
     norms = np.linalg.norm(q, axis=1)
     if not np.all(np.isfinite(norms) & (norms > 0)):
         raise ValueError("the state quaternion must be finite and non-zero")
-
-
-def with_output_types(est: Estimate, types: Mapping[str, Any]) -> Estimate:
-    """The estimate with the named outputs as before the compiled path: width-1 series
-    squeezed to (…, N) and converted to the given type (None: kept float).
-
-    A conversion is made when its output is first read (``Outputs``' deferred values): it
-    reads a strided column of all the kernel's outputs, 5 ms per output of 1000 sensors x
-    1000 samples (a sixth of Bachmann's ``run``), which most callers never read.
-    """
-    outputs = Outputs(est.outputs)
-    for name, dtype in types.items():
-        outputs[name] = Deferred(partial(_typed, est.outputs, name, dtype))
-    return dataclasses.replace(est, outputs=outputs)
-
-
-def _typed(outputs: Mapping[str, Any], name: str, dtype: Any) -> NDArray[Any]:
-    value = outputs[name][..., 0]
-    return value if dtype is None else value.astype(dtype)

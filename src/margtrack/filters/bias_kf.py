@@ -62,8 +62,8 @@ from numpy.typing import NDArray
 from margtrack import frames
 from margtrack.estimator import Estimate, Params, initial_orientation, param
 from margtrack.estimator.compiled import CompiledEstimator, CompiledState
+from margtrack.estimator.outputs import with_output_types
 from margtrack.estimators.all_accelerometer import differential_acceleration, gravity_estimate
-from margtrack.filters._rest_null import with_output_types
 from margtrack.frames import STANDARD_GRAVITY_M_S2
 from margtrack.kernels import all_accelerometer as aa_kernel
 from margtrack.kernels import bias_kf as kernel

@@ -43,11 +43,11 @@ from margtrack import frames
 from margtrack import quaternion as quat
 from margtrack.estimator import Estimate, Params, param
 from margtrack.estimator.compiled import CompiledEstimator, CompiledState
+from margtrack.estimator.outputs import with_output_types
 from margtrack.filters._rest_null import (
     check_rows,
     rest_null_coefficients,
     rest_null_layout,
-    with_output_types,
 )
 from margtrack.kernels import complementary as kernel
 from margtrack.kernels import contract as kc

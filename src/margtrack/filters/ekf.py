@@ -70,12 +70,12 @@ from numpy.typing import NDArray
 from margtrack import frames
 from margtrack.estimator import Estimate
 from margtrack.estimator.compiled import CompiledEstimator, CompiledState
+from margtrack.estimator.outputs import with_output_types
 from margtrack.estimators.prefilter import dip_rad_or_nan
 from margtrack.filters._rest_null import (
     check_rows,
     rest_null_coefficients,
     rest_null_layout,
-    with_output_types,
 )
 from margtrack.filters.ekf_params import MarinsEkfParams
 from margtrack.kernels import contract as kc

@@ -25,7 +25,7 @@ from numpy.typing import DTypeLike, NDArray
 from margtrack.estimator.sensor_threads import in_threads
 from margtrack.kernels.frames_copy import frames_to_sensors
 
-__all__ = ["BatchBuffers"]
+__all__ = ["BatchBuffers", "frames_of"]
 
 #: samples (sensors x frames) from which a batch's copies are shared among threads
 THREADED_COPY_MIN_SAMPLES = 50_000
@@ -77,9 +77,8 @@ class BatchBuffers:
                 outs.append(values)
                 continue
             out = self.get(name, values.shape[1])
-            frames = np.swapaxes(values, 0, 1)
-            frame_major = values.ndim == 3 and frames.flags.c_contiguous
-            if frame_major and values.dtype == dtype == np.float64:
+            frames = frames_of(values)
+            if frames is not None and dtype == np.float64:
                 moves.append((frames, out))
             else:
                 np.copyto(out, values)
@@ -88,6 +87,14 @@ class BatchBuffers:
             size = moves[0][1].shape[0] * moves[0][1].shape[1]
             _copy_threaded(moves, n_threads if size >= THREADED_COPY_MIN_SAMPLES else 1)
         return outs
+
+
+def frames_of(values: NDArray[np.generic]) -> NDArray[np.float64] | None:
+    """The C-contiguous (N, S, 3) float64 block of which ``values`` (S, N, 3) is the
+    swapped view (as sources deliver frames), or None if it is not one."""
+    frames = np.swapaxes(values, 0, 1)
+    frame_major = values.ndim == 3 and frames.flags.c_contiguous and values.dtype == np.float64
+    return frames if frame_major else None
 
 
 def _copy_threaded(moves: list[tuple[NDArray[np.generic], NDArray[np.generic]]],

@@ -46,7 +46,7 @@ from margtrack.estimator.contract import Estimator
 from margtrack.estimator.flags import DATA_FLAGS, Flag
 from margtrack.estimator.sensor_threads import thread_count
 from margtrack.live.assembler import Frames
-from margtrack.live.buffers import BatchBuffers
+from margtrack.live.buffers import BatchBuffers, frames_of
 from margtrack.live.isolation import finish_raised, reinitialise, restart, run_each
 
 Array = NDArray[np.float64]
@@ -150,9 +150,9 @@ class SensorFilters:
         est = self.estimator
         assert isinstance(est, CompiledEstimator)
         inputs = [("gyr", gyr if est.uses_gyr else None), ("acc", acc), ("mag", mag)]
-        frames = [None if v is None else np.swapaxes(v, 0, 1) for _, v in inputs]
+        frames = [None if v is None else frames_of(v) for _, v in inputs]
         frame_major = est.takes_frames(self.n_sensors) and all(
-            f is None or (f.flags.c_contiguous and f.dtype == np.float64) for f in frames)
+            f is not None or v is None for f, (_, v) in zip(frames, inputs, strict=True))
         if frame_major:  # the lockstep blocks read the sources' frames where they are
             kernel_in = frames
         else:
