@@ -8,6 +8,7 @@ and body model.
 
 from __future__ import annotations
 
+import itertools
 import math
 import subprocess
 import sys
@@ -19,12 +20,13 @@ import pytest
 from margtrack import body, methods
 from margtrack import quaternion as quat
 from margtrack.body.kinematics import people_pose
-from margtrack.estimator.flags import DATA_FLAGS
+from margtrack.estimator.flags import DATA_FLAGS, Flag
+from margtrack.kernels.batch_close import close_sensors
 from margtrack.live.assembler import Frames
 from margtrack.live.avatars import Avatars
 from margtrack.live.clocks import SensorClocks
 from margtrack.live.engine import Engine
-from margtrack.live.filtering import SensorFilters, hold_where
+from margtrack.live.filtering import SensorFilters
 from margtrack.live.protocol import Chunk, iter_chunks
 from margtrack.live.replay import ReplaySource
 from margtrack.live.simulator import PeopleSimulation
@@ -115,7 +117,7 @@ def test_people_pose_refuses_bad_input_naming_it():
         people_pose(skeleton, q[:, :3], index, off, roots)
 
 
-# -- filters: holds and counts ------------------------------------------------------------
+# -- filters: repairs, holds and counts ------------------------------------------------
 def _hold_per_sample(q, hold, q_before):
     """The former loop: each held sample takes the one before it."""
     q = q.copy()
@@ -128,14 +130,56 @@ def _hold_per_sample(q, hold, q_before):
     return q
 
 
-def test_hold_where_equals_the_per_sample_loop():
-    rng = np.random.default_rng(2)
-    q = rng.normal(size=(30, 9, 4))
-    q_before = rng.normal(size=(30, 4))
-    for p in (0.0, 0.3, 0.9, 1.0):
-        hold = rng.random((30, 9)) < p
-        np.testing.assert_array_equal(hold_where(q, hold, q_before),
-                                      _hold_per_sample(q, hold, q_before))
+def _close_former(q, flags, stale, held, q_last, processed, flagged):
+    """The former numpy passes of SensorFilters over one batch (in place, as the kernel)."""
+    bad = np.flatnonzero(~np.isfinite(q).all(axis=(1, 2)))
+    q_before = q_last[bad]
+    q_before[~np.isfinite(q_before).all(axis=1)] = (1.0, 0.0, 0.0, 0.0)
+    q[bad] = _hold_per_sample(q[bad], ~np.isfinite(q[bad]).all(axis=2), q_before)
+    flags[bad] |= np.uint16(Flag.INITIALISING)
+    if stale is not None:
+        q[:] = _hold_per_sample(q, stale, q_last)
+    q_last[:] = q[:, -1]
+    processed += (~held).sum(axis=1)
+    flagged += np.count_nonzero(((flags & np.uint16(DATA_FLAGS)) != 0) & ~held, axis=1)
+    return bad
+
+
+@pytest.mark.parametrize("split", [1, 3])
+def test_close_sensors_equals_the_former_numpy_passes(split):
+    """Non-finite samples filled from the last finite one (or the last batch's, or the
+    identity), stale ones held, the last orientation kept, the counts: the same bits as
+    the numpy passes it replaced, whether the sensors are done in one part or three."""
+    rng = np.random.default_rng(11)
+    n_sensors, n = 40, 9
+    q_last = _unit(rng, n_sensors)
+    q_last[5] = np.nan  # a sensor whose last orientation is not finite: the identity
+    processed = rng.integers(0, 50, n_sensors)
+    flagged = rng.integers(0, 5, n_sensors)
+    want = [q_last.copy(), processed.copy(), flagged.copy()]
+    for batch in range(3):
+        q = _unit(rng, n_sensors, n)
+        q[[2, 5, 7], [0, 3, 8]] = np.nan
+        q[7, 4, 2] = np.inf
+        q[9, :] = np.nan  # a sensor with no finite sample
+        flags = rng.integers(0, 1 << 10, (n_sensors, n)).astype(np.uint16)
+        stale = (rng.random((n_sensors, n)) < 0.2) if batch != 1 else None
+        held = rng.random((n_sensors, n)) < 0.3
+        q_want, flags_want = q.copy(), flags.copy()
+        bad_want = _close_former(q_want, flags_want, stale, held, *want)
+        bad = np.zeros(n_sensors, dtype=np.bool_)
+        edges = [n_sensors * k // split for k in range(split + 1)]
+        for lo, hi in itertools.pairwise(edges):
+            close_sensors(q, flags, np.zeros((0, 0), bool) if stale is None else stale, held,
+                          q_last, processed, flagged, bad, np.uint16(DATA_FLAGS),
+                          np.uint16(Flag.INITIALISING), lo, hi)
+        np.testing.assert_array_equal(np.flatnonzero(bad), bad_want)
+        np.testing.assert_array_equal(q, q_want)
+        np.testing.assert_array_equal(flags, flags_want)
+        for got, expected in zip((q_last, processed, flagged), want, strict=True):
+            np.testing.assert_array_equal(got, expected)
+    assert set(bad_want.tolist()) == {2, 5, 7, 9} and np.isfinite(q).all()
+    np.testing.assert_array_equal(q[9], np.broadcast_to(q_last[9], (n, 4)))
 
 
 def test_processed_and_flagged_counts_equal_the_dense_per_sensor_sums():
