@@ -90,6 +90,36 @@ def test_people_pose_equals_eq7_and_positions_per_person_to_the_last_bit():
         np.testing.assert_array_equal(g, w)
 
 
+def test_people_pose_shared_among_threads_equals_one_pass_and_names_the_first_bad(
+        monkeypatch):
+    """From THREADED_MIN_SEGMENTS segments the checks and the pose are split among threads
+    (people and sensors in parts): the same bits as one pass, the first bad sensor named
+    whichever part finds it."""
+    import margtrack.body.kinematics as kinematics
+    from margtrack.estimator.sensor_threads import thread_count
+
+    rng = np.random.default_rng(9)
+    skeleton = body.Skeleton.from_height(1.75, "full", "NED")
+    n_people, k = 2100, len(skeleton)
+    assert n_people * k >= kinematics.THREADED_MIN_SEGMENTS and thread_count() >= 2
+    index = rng.permutation(n_people * k).reshape(n_people, k)
+    q_sensor, offsets = _unit(rng, n_people * k), _unit(rng, n_people, k)
+    roots = rng.normal(size=(n_people, 3))
+    threaded = people_pose(skeleton, q_sensor, index, offsets, roots)
+    monkeypatch.setattr(kinematics, "THREADED_MIN_SEGMENTS", 10 ** 9)
+    for got, want in zip(threaded, people_pose(skeleton, q_sensor, index, offsets, roots),
+                         strict=True):
+        np.testing.assert_array_equal(got, want)
+    monkeypatch.undo()
+    last = n_people * k - 1
+    for bad_rows, named in (([last], last), ([last, 7], 7)):
+        bad = q_sensor.copy()
+        bad[bad_rows] = 2.0 * bad[bad_rows]
+        with pytest.raises(ValueError, match=rf"q_sensor\[{named}\] is not a unit quaternion "
+                                             r"\(norm 2\.0"):
+            people_pose(skeleton, bad, index, offsets, roots)
+
+
 def test_people_pose_refuses_bad_input_naming_it():
     skeleton = body.Skeleton.from_height(1.7, "left_arm", "ENU")
     q = quat.identity(3)
