@@ -105,12 +105,20 @@ def test_people_pose_shared_among_threads_equals_one_pass_and_names_the_first_ba
     index = rng.permutation(n_people * k).reshape(n_people, k)
     q_sensor, offsets = _unit(rng, n_people * k), _unit(rng, n_people, k)
     roots = rng.normal(size=(n_people, 3))
-    threaded = people_pose(skeleton, q_sensor, index, offsets, roots)
+    q_copy = np.full_like(q_sensor, np.nan)
+    threaded = people_pose(skeleton, q_sensor, index, offsets, roots, q_copy=q_copy)
+    np.testing.assert_array_equal(q_copy, q_sensor)  # copied in the check's pass
     monkeypatch.setattr(kinematics, "THREADED_MIN_SEGMENTS", 10 ** 9)
-    for got, want in zip(threaded, people_pose(skeleton, q_sensor, index, offsets, roots),
-                         strict=True):
+    q_copy[:] = np.nan
+    for got, want in zip(threaded, people_pose(skeleton, q_sensor, index, offsets, roots,
+                                               q_copy=q_copy), strict=True):
         np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(q_copy, q_sensor)
     monkeypatch.undo()
+    with pytest.raises(ValueError, match=r"q_copy must be a writeable C-contiguous float64 "
+                                         r"array of shape \(31500, 4\), got float32"):
+        people_pose(skeleton, q_sensor, index, offsets, roots,
+                    q_copy=np.empty((31500, 4), np.float32))
     last = n_people * k - 1
     for bad_rows, named in (([last], last), ([last, 7], 7)):
         bad = q_sensor.copy()

@@ -26,6 +26,7 @@ Array = NDArray[np.float64]
 #: about 16 ns a segment on one thread (3 ms at 183,750 sensors), and starting a thread
 #: costs tens of microseconds
 THREADED_MIN_SEGMENTS = 30_000
+_NO_COPY = np.empty((0, 4))  # first_non_unit's "no copy"
 
 __all__ = ["BodyPose", "people_pose", "positions", "resample_orientations", "segment_orientations",
            "track"]
@@ -109,7 +110,7 @@ def positions(
 
 def people_pose(
     skeleton: Skeleton, q_sensor: ArrayLike, index: ArrayLike, q_offset: ArrayLike,
-    roots_m: ArrayLike,
+    roots_m: ArrayLike, q_copy: Array | None = None,
 ) -> tuple[Array, Array, Array]:
     """One frame of A people wearing sensors on the K segments of ``skeleton`` (000, eqs. 7, 11).
 
@@ -127,6 +128,8 @@ def people_pose(
     index : (A, K) int, the sensor of each person's segment (skeleton order).
     q_offset : (A, K, 4) each person's ``q_offset`` (:func:`margtrack.body.calibrate`).
     roots_m : (A, 3) m, each person's root joint.
+    q_copy : (S, 4) float64 C-contiguous, or None: receives a copy of ``q_sensor``, made
+        in the unit check's pass (one pass over the sensors instead of two).
 
     Returns
     -------
@@ -149,12 +152,21 @@ def people_pose(
     if idx.size and (idx.min() < 0 or idx.max() >= q.shape[0]):
         raise ValueError(f"index must name sensors 0..{q.shape[0] - 1}, got "
                          f"{int(idx.min())}..{int(idx.max())}")
+    if q_copy is None:
+        out = _NO_COPY
+    elif (q_copy.shape != q.shape or q_copy.dtype != np.float64
+          or not q_copy.flags.c_contiguous or not q_copy.flags.writeable):
+        raise ValueError(f"q_copy must be a writeable C-contiguous float64 array of shape "
+                         f"{q.shape}, got {q_copy.dtype} {q_copy.shape}")
+    else:
+        out = q_copy
     n_threads = thread_count() if idx.size >= THREADED_MIN_SEGMENTS else 1
     found: list[tuple[int, float]] = [(-1, 1.0)] * n_threads
     sensor_edges = [q.shape[0] * k // n_threads for k in range(n_threads + 1)]
 
     def check(k: int) -> None:
-        found[k] = first_non_unit(q, UNIT_NORM_TOLERANCE, sensor_edges[k], sensor_edges[k + 1])
+        found[k] = first_non_unit(q, UNIT_NORM_TOLERANCE, sensor_edges[k], sensor_edges[k + 1],
+                                  out)
 
     in_threads(check, n_threads, "margtrack-pose")
     for s, norm in found:  # the first of the parts in sensor order

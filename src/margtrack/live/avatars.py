@@ -143,11 +143,14 @@ class Avatars:
         """(A, K, 4) the ``q_offset`` of every person's calibration, stacked."""
         return np.stack([c.offsets for c in calibrations])
 
-    def pose(self, q_sensor: ArrayLike, offsets: ArrayLike) -> tuple[Array, Array, Array]:
+    def pose(self, q_sensor: ArrayLike, offsets: ArrayLike, q_copy: Array | None = None
+             ) -> tuple[Array, Array, Array]:
         """Segment orientations (A, K, 4), joints (A, K, 3) m and ends (A, K, 3) m of one frame.
 
         ``q_sensor`` (S, 4) sensor to earth; ``offsets`` (A, K, 4) (:meth:`offsets`); segment
         quaternions with ``w >= 0``. One compiled pass over people and segments
-        (:func:`margtrack.body.kinematics.people_pose`, 000 eqs. 7, 11).
+        (:func:`margtrack.body.kinematics.people_pose`, 000 eqs. 7, 11); ``q_copy`` (S, 4),
+        if given, receives a copy of ``q_sensor`` in the same pass as its check.
         """
-        return people_pose(self.skeleton, q_sensor, self.index, offsets, self.root_positions_m)
+        return people_pose(self.skeleton, q_sensor, self.index, offsets, self.root_positions_m,
+                           q_copy=q_copy)

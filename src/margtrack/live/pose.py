@@ -47,10 +47,13 @@ class Pose:
         """The pose of frame ``index`` from the sensors' ``q_sensor`` (S, 4) (copied): every
         person's segments and joints at once (:meth:`Avatars.pose`, 000 eqs. 7, 11) if there
         is a body model; ``published_s`` NaN until published."""
-        q_sensor = np.array(q_sensor, dtype=np.float64)  # one contiguous copy for both
         q_segment = joints = ends = None
-        if avatars is not None and offsets is not None:
-            q_segment, joints, ends = avatars.pose(q_sensor, offsets)
+        if avatars is not None and offsets is not None:  # copied while it is checked
+            q_copy = np.empty(np.shape(q_sensor))
+            q_segment, joints, ends = avatars.pose(q_sensor, offsets, q_copy=q_copy)
+            q_sensor = q_copy
+        else:
+            q_sensor = np.array(q_sensor, dtype=np.float64)
         return cls(index, float(t_s), q_sensor, q_segment, joints, ends,
                    float(arrival_s), math.nan)
 
