@@ -42,7 +42,7 @@ import numpy as np
 
 from margtrack.kernels import contract, screen
 from margtrack.kernels.contract import INITIALISING, K_Q, K_READY, K_SCREEN, K_STARTS
-from margtrack.kernels.jit import njit, select
+from margtrack.kernels.jit import njit, select, transpose8
 
 #: sensors per block: 4 AVX-512 vectors; a block's buffer (about 70 slots) stays in L1
 LANES = 32
@@ -135,6 +135,45 @@ def _scalar(start_at, step_at, hold_at, st, o, n_row, coef, scoef, dt, has_mag):
 
 
 @njit(cache=True, inline="always")
+def _rows_in(rows, s0, n, n_row, st):
+    """Rows s0 .. s0 + n into the block's interleaved buffer (slot j of lane l at
+    ``st[j * LANES + l]``); a full block by 8 x 8 tiles of vector shuffles
+    (``jit.transpose8``: in the live engine's batches of a few frames these moves were a
+    fifth of the kernel's time, as scalar loads and stores 1.5 times a plain copy)."""
+    lanes = LANES
+    if n == lanes:
+        tiled = n_row // 8 * 8
+        for lb in range(0, lanes, 8):
+            for jb in range(0, tiled, 8):
+                transpose8(rows, (s0 + lb) * n_row + jb, n_row, st, jb * lanes + lb, lanes)
+            for j in range(tiled, n_row):
+                for lane in range(lb, lb + 8):
+                    st[j * lanes + lane] = rows[s0 + lane, j]
+    else:
+        for lane in range(n):
+            for j in range(n_row):
+                st[j * lanes + lane] = rows[s0 + lane, j]
+
+
+@njit(cache=True, inline="always")
+def _rows_out(rows, s0, n, n_row, st):
+    """:func:`_rows_in` backwards: the block's buffer into rows s0 .. s0 + n."""
+    lanes = LANES
+    if n == lanes:
+        tiled = n_row // 8 * 8
+        for lb in range(0, lanes, 8):
+            for jb in range(0, tiled, 8):
+                transpose8(st, jb * lanes + lb, lanes, rows, (s0 + lb) * n_row + jb, n_row)
+            for j in range(tiled, n_row):
+                for lane in range(lb, lb + 8):
+                    rows[s0 + lane, j] = st[j * lanes + lane]
+    else:
+        for lane in range(n):
+            for j in range(n_row):
+                rows[s0 + lane, j] = st[j * lanes + lane]
+
+
+@njit(cache=True, inline="always")
 def block(start_at, step_at, hold_at, rare_at, n_row, n_x, st, rows, s0, scoef, coef, dts, ks,
           tflags, gyr, acc, mag, has, q_out, x_out, flags_out, frame_major, s_in):
     """Sensors s0 .. s0 + LANES (fewer at the end) through all samples, in lockstep.
@@ -156,9 +195,7 @@ def block(start_at, step_at, hold_at, rare_at, n_row, n_x, st, rows, s0, scoef, 
     has_mag, has_gyr = (has & 1) != 0, (has & 2) != 0
     lanes = LANES
     n = min(lanes, rows.shape[0] - s0)
-    for lane in range(n):
-        for j in range(n_row):
-            st[j * lanes + lane] = rows[s0 + lane, j]
+    _rows_in(rows, s0, n, n_row, st)
     i_in = (n_row + B_GYR) * lanes
     i_q, i_x, i_f = (n_row + B_Q) * lanes, (n_row + B_X) * lanes, (n_row + B_FLAGS) * lanes
     i_scalar = (n_row + B_SCALAR) * lanes
@@ -197,9 +234,7 @@ def block(start_at, step_at, hold_at, rare_at, n_row, n_x, st, rows, s0, scoef, 
                 q_out[su, iu, np.uint64(k)] = st[np.uint64(i_q + k * lanes) + lu]
             for k in range(n_x_out):
                 x_out[su, iu, np.uint64(k)] = st[np.uint64(i_x + k * lanes) + lu]
-    for lane in range(n):
-        for j in range(n_row):
-            rows[s0 + lane, j] = st[j * lanes + lane]
+    _rows_out(rows, s0, n, n_row, st)
 
 
 @njit(cache=True, inline="always")

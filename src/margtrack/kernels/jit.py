@@ -28,7 +28,7 @@ from typing import Any
 
 __all__ = [
     "LazyKernel", "compiled_ir", "dispatcher", "kernels", "literally", "njit", "numba_loaded",
-    "on_numba_load", "resolve_all", "select", "to_fixed_tuple",
+    "on_numba_load", "resolve_all", "select", "to_fixed_tuple", "transpose8",
 ]
 
 
@@ -62,6 +62,18 @@ class _SelectPlaceholder:
         return "select (numba not imported yet)"
 
 
+class _Transpose8Placeholder:
+    """Stands for ``transpose8`` (:mod:`margtrack.kernels.transpose`) until numba is imported."""
+
+    def __call__(self, *args: Any) -> None:  # pure Python use (numba's JIT off)
+        from margtrack.kernels.transpose import transpose8_python
+
+        transpose8_python(*args)
+
+    def __repr__(self) -> str:
+        return "transpose8 (numba not imported yet)"
+
+
 #: ``literally(n)`` in a kernel compiles it once per constant value of n at its call sites
 #: (numba's literal dispatch): a size fixed at compile time without inlining the kernel
 literally: Any = _LiterallyPlaceholder()
@@ -74,6 +86,9 @@ to_fixed_tuple: Any = _ToFixedTuplePlaceholder()
 #: store whatever ``ok``; written as a branch, LLVM drops the store of the value just
 #: loaded, and the store left in a branch is a masked store when vectorised (slow on AMD)
 select: Any = _SelectPlaceholder()
+#: ``transpose8(src, src_off, src_stride, dst, dst_off, dst_stride)``: an 8 x 8 tile of
+#: float64 transposed by vector shuffles (:mod:`margtrack.kernels.transpose`)
+transpose8: Any = _Transpose8Placeholder()
 
 _KERNELS: list[LazyKernel] = []  # every kernel defined, numba's or not yet
 _ON_LOAD: list[Callable[[], None]] = []
@@ -268,6 +283,8 @@ def resolve_all() -> None:
             return
         import numba
 
+        from margtrack.kernels.transpose import transpose8_compiled
+
         for callback in list(_ON_LOAD):
             callback()
         real = {id(k): _dispatcher(numba, k) for k in _KERNELS}
@@ -279,10 +296,12 @@ def resolve_all() -> None:
             _LiterallyPlaceholder: numba.literally,
             _ToFixedTuplePlaceholder: real_to_fixed_tuple,
             _SelectPlaceholder: _select_intrinsic(),
+            _Transpose8Placeholder: transpose8_compiled(),
         }
         if numba.config.DISABLE_JIT:  # the kernels run as Python: numba's intrinsics cannot
             del placeholders[_ToFixedTuplePlaceholder]
             del placeholders[_SelectPlaceholder]
+            del placeholders[_Transpose8Placeholder]
         _rebind(real, placeholders)
         for kernel in _KERNELS:
             kernel.dispatcher = real[id(kernel)]
@@ -324,7 +343,7 @@ def kernels() -> list[LazyKernel]:
 
 def _rebind(real: dict[int, Any], placeholders: dict[type, Any]) -> None:
     """Point every module global naming a kernel (or a placeholder: ``literally``,
-    ``to_fixed_tuple``, ``select``) at the real object."""
+    ``to_fixed_tuple``, ``select``, ``transpose8``) at the real object."""
     for module in list(sys.modules.values()):
         names = getattr(module, "__dict__", None)
         if not isinstance(names, dict):
