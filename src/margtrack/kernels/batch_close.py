@@ -20,9 +20,9 @@ Per sensor s of ``[lo, hi)``, in this order:
 4. ``processed[s]`` counts the samples not held, ``flagged[s]`` those of them whose flags
    have a bit of ``data_flags``.
 
-``stale`` and ``held`` are (S, N) booleans, or (0, 0) arrays for none. A sample is
-finite when its four numbers are (the sum is tested first: quaternions are bounded, so
-it is finite exactly when every entry is).
+``held`` is an (S, N) boolean array, ``stale`` one too or a (0, 0) array for none. A
+sample is finite when its four numbers are (the sum is tested first: quaternions are
+bounded, so it is finite exactly when every entry is).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def close_sensors(q, flags, stale, held, q_last, processed, flagged, bad, data_f
     """The module's steps for sensors ``lo`` to ``hi - 1``; q (S, N, 4), flags (S, N)
     uint16, q_last (S, 4), processed and flagged (S,) int64, bad (S,) bool, all in place."""
     n = q.shape[1]
-    has_stale, has_held = stale.shape[0] > 0, held.shape[0] > 0
+    has_stale = stale.shape[0] > 0
     for s in range(lo, hi):
         total = 0.0
         for i in range(n):
@@ -52,7 +52,7 @@ def close_sensors(q, flags, stale, held, q_last, processed, flagged, bad, data_f
             q_last[s, c] = q[s, n - 1, c]
         kept, counted = n, 0
         for i in range(n):
-            use = not (has_held and held[s, i])
+            use = not held[s, i]
             kept -= not use
             counted += use and (flags[s, i] & data_flags) != 0
         processed[s] += kept
