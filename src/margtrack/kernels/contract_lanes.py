@@ -135,42 +135,52 @@ def _scalar(start_at, step_at, hold_at, st, o, n_row, coef, scoef, dt, has_mag):
 
 
 @njit(cache=True, inline="always")
-def _rows_in(rows, s0, n, n_row, st):
+def _move_slot(rows, s, j, st, k, into_block):
+    """Slot j of row s to ``st[k]``, or back."""
+    if into_block:
+        st[k] = rows[s, j]
+    else:
+        rows[s, j] = st[k]
+
+
+@njit(cache=True, inline="always")
+def _move_rows(rows, s0, n, n_row, st, into_block):
     """Rows s0 .. s0 + n into the block's interleaved buffer (slot j of lane l at
-    ``st[j * LANES + l]``); a full block by 8 x 8 tiles of vector shuffles
-    (``jit.transpose8``: in the live engine's batches of a few frames these moves were a
-    fifth of the kernel's time, as scalar loads and stores 1.5 times a plain copy)."""
+    ``st[j * LANES + l]``), or back (``into_block`` False, a constant at each call site).
+
+    A full block moves by 8 x 8 tiles of vector shuffles (``jit.transpose8``: in the live
+    engine's batches of a few frames these moves were a fifth of the kernel's time, as
+    scalar loads and stores 1.5 times a plain copy), the slots past the last whole tile
+    and a partial block's rows by scalar loops."""
     lanes = LANES
     if n == lanes:
         tiled = n_row // 8 * 8
         for lb in range(0, lanes, 8):
             for jb in range(0, tiled, 8):
-                transpose8(rows, (s0 + lb) * n_row + jb, n_row, st, jb * lanes + lb, lanes)
+                at_rows, at_block = (s0 + lb) * n_row + jb, jb * lanes + lb
+                if into_block:
+                    transpose8(rows, at_rows, n_row, st, at_block, lanes)
+                else:
+                    transpose8(st, at_block, lanes, rows, at_rows, n_row)
             for j in range(tiled, n_row):
                 for lane in range(lb, lb + 8):
-                    st[j * lanes + lane] = rows[s0 + lane, j]
+                    _move_slot(rows, s0 + lane, j, st, j * lanes + lane, into_block)
     else:
         for lane in range(n):
             for j in range(n_row):
-                st[j * lanes + lane] = rows[s0 + lane, j]
+                _move_slot(rows, s0 + lane, j, st, j * lanes + lane, into_block)
+
+
+@njit(cache=True, inline="always")
+def _rows_in(rows, s0, n, n_row, st):
+    """Rows s0 .. s0 + n into the block's buffer (:func:`_move_rows`)."""
+    _move_rows(rows, s0, n, n_row, st, True)
 
 
 @njit(cache=True, inline="always")
 def _rows_out(rows, s0, n, n_row, st):
-    """:func:`_rows_in` backwards: the block's buffer into rows s0 .. s0 + n."""
-    lanes = LANES
-    if n == lanes:
-        tiled = n_row // 8 * 8
-        for lb in range(0, lanes, 8):
-            for jb in range(0, tiled, 8):
-                transpose8(st, jb * lanes + lb, lanes, rows, (s0 + lb) * n_row + jb, n_row)
-            for j in range(tiled, n_row):
-                for lane in range(lb, lb + 8):
-                    rows[s0 + lane, j] = st[j * lanes + lane]
-    else:
-        for lane in range(n):
-            for j in range(n_row):
-                rows[s0 + lane, j] = st[j * lanes + lane]
+    """The block's buffer into rows s0 .. s0 + n (:func:`_move_rows`)."""
+    _move_rows(rows, s0, n, n_row, st, False)
 
 
 @njit(cache=True, inline="always")
