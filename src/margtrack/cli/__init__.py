@@ -77,8 +77,9 @@ COMMAND_MODULES = ("inspect", "simulate", "run", "evaluate", "experiment", "benc
 for _module in COMMAND_MODULES:
     importlib.import_module(f"margtrack.cli.{_module}")
 
-#: commands that run numba kernels: a notice shows while a kernel compiles (first run)
-COMPILING_COMMANDS = ("demo", "run", "evaluate", "tune", "experiment", "body", "bench", "plot",
+#: commands that run numba kernels: a notice shows while a kernel compiles (first run);
+#: ``demo`` shows its own, naming each method as it compiles
+COMPILING_COMMANDS = ("run", "evaluate", "tune", "experiment", "body", "bench", "plot",
                       "batch")
 
 

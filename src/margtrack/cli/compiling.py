@@ -13,8 +13,6 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
 
-from margtrack.kernels import jit
-
 if TYPE_CHECKING:  # pragma: no cover
     from rich.console import Console
     from rich.status import Status
@@ -28,26 +26,31 @@ class CompileNotice:
     """Listener of numba's ``"numba:compile"`` events that keeps a notice up while they run.
 
     ``kernels`` lists the compiled functions (``module.function``) in order; nested
-    compilations (a kernel calling another) count once through ``depth``.
+    compilations (a kernel calling another) count once through ``depth``. ``stage`` names
+    what a long command is doing (``"gradient (3 of 14)"``): a log gets one line per stage
+    that compiles, a terminal's spinner shows it beside the kernel.
     """
 
     def __init__(self, console: Console) -> None:
         self.console = console
         self.kernels: list[str] = []
         self.depth = 0
+        self.stage: str | None = None
         self._status: Status | None = None
-        self._told = False
+        self._told: list[str | None] = []  # the stages a line was printed for
 
     def on_start(self, event: Any) -> None:
         """A compilation began: start (or update) the notice."""
         name = _kernel_name(event)
         self.kernels.append(name)
         self.depth += 1
-        text = f"{MESSAGE}: {name}"
+        where = f"{self.stage}: " if self.stage else ""
+        text = f"{MESSAGE}: {where}{name}"
         if not self.console.is_terminal:
-            if not self._told:  # a log or a pipe gets one plain line, not an animation
-                self.console.print(f"{MESSAGE}...", soft_wrap=True)
-                self._told = True
+            if self.stage not in self._told:  # a log or a pipe: a line, not an animation
+                self.console.print(f"{MESSAGE}{': ' + self.stage if self.stage else ''}...",
+                                   soft_wrap=True)
+                self._told.append(self.stage)
             return
         if self._status is None:
             self._status = self.console.status(text, spinner="dots")
@@ -88,7 +91,7 @@ def compile_notice(console: Console) -> Iterator[CompileNotice]:
     notice = CompileNotice(console)
     listening = contextlib.ExitStack()
 
-    def listen() -> None:  # numba is imported only when a kernel first runs through it
+    def listen() -> None:
         from numba.core import event
 
         class _Listener(event.Listener):  # numba accepts only its own Listener subclasses
@@ -100,11 +103,10 @@ def compile_notice(console: Console) -> Iterator[CompileNotice]:
 
         listening.enter_context(event.install_listener("numba:compile", _Listener()))
 
-    remove = jit.on_numba_load(listen)
+    listen()
     try:
         yield notice
     finally:
-        remove()
         listening.close()
         notice.stop()
 
@@ -120,39 +122,3 @@ def with_compile_notice(func: Callable[..., Any], console: Console) -> Callable[
 
     wrapper.compile_notice = True  # type: ignore[attr-defined]  # marks a wrapped command
     return wrapper
-
-
-#: shown while an ahead-of-time build compiles (``margtrack.kernels.aot``)
-AOT_MESSAGE = "compiling kernels for a quick start next time (first run only)"
-
-
-@contextmanager
-def quick_start_build(console: Console) -> Iterator[None]:
-    """After the block, build the kernels it ran through numba ahead of time.
-
-    The next process running the same command then loads them in milliseconds instead of
-    importing numba (``margtrack.kernels.aot``). Nothing happens when every kernel came from
-    a build already, or with ``MARGTRACK_AOT=0``. A failed build (no C compiler, say) is
-    reported once in a line and remembered, and changes nothing else.
-    """
-    from margtrack.kernels import aot
-
-    if not aot.enabled():
-        yield
-        return
-    with aot.recording() as recorded:
-        yield
-    if not recorded or not aot.worth_building(recorded):
-        return
-    # a line, not a spinner: numba's compile notice (a spinner on a terminal) shows the
-    # kernels being built, and a console shows one live display at a time
-    console.print(AOT_MESSAGE)
-    try:
-        aot.build(recorded)
-    except Exception as exc:  # any build failure only costs start-up time
-        aot.remember_failure(exc)
-        console.print(
-            f"[yellow]note:[/] the quick-start build failed ({type(exc).__name__}: {exc}); "
-            "margtrack works as before and only starts slower. MARGTRACK_AOT=0 stops trying.",
-            soft_wrap=True,
-        )

@@ -7,8 +7,7 @@ from typing import Annotated
 
 import typer
 
-from margtrack.cli.app import app, console, err_console, friendly_errors, progress_bar, warn
-from margtrack.cli.compiling import quick_start_build
+from margtrack.cli.app import app, console, friendly_errors, progress_bar, warn
 from margtrack.cli.options import (
     AccUnitOption,
     ColumnOption,
@@ -78,23 +77,22 @@ def run(
         console.print(f"applied calibration {calibration}" + (f"; sets {told}" if told else ""))
     # a progress bar on a terminal (long recordings take minutes), nothing in pipes and logs;
     # parameters given with -p win over the calibration's (run_file merges them so)
-    with quick_start_build(err_console):  # the next run starts without numba
-        with reader_warnings(), progress_bar(", ".join(p.name for p in paths)) as progress:
-            result = run_file(
-                paths[0] if len(paths) == 1 else paths, output, method, param or (),
-                calibration=cal, frame=frame,
-                read_kwargs=read_options(gyr_unit, acc_unit, mag_unit, time_unit, column, profile),
-                chunk_samples=chunk_samples, force=force, on_warning=warn,
-                progress=progress,
-            )
-        console.print(
-            f"{result.method}: {result.samples} samples, frame {result.frame} -> {output}"
+    with reader_warnings(), progress_bar(", ".join(p.name for p in paths)) as progress:
+        result = run_file(
+            paths[0] if len(paths) == 1 else paths, output, method, param or (),
+            calibration=cal, frame=frame,
+            read_kwargs=read_options(gyr_unit, acc_unit, mag_unit, time_unit, column, profile),
+            chunk_samples=chunk_samples, force=force, on_warning=warn,
+            progress=progress,
         )
-        if result.flag_summary:
-            console.print(result.flag_summary, soft_wrap=True)
-        if result.total_rmse_deg is not None:
-            console.print(
-                f"against the truth: total {result.total_rmse_deg:.2f} deg, heading "
-                f"{result.heading_rmse_deg:.2f} deg, inclination {result.inclination_rmse_deg:.2f} "
-                "deg RMSE"
-            )
+    console.print(
+        f"{result.method}: {result.samples} samples, frame {result.frame} -> {output}"
+    )
+    if result.flag_summary:
+        console.print(result.flag_summary, soft_wrap=True)
+    if result.total_rmse_deg is not None:
+        console.print(
+            f"against the truth: total {result.total_rmse_deg:.2f} deg, heading "
+            f"{result.heading_rmse_deg:.2f} deg, inclination {result.inclination_rmse_deg:.2f} "
+            "deg RMSE"
+        )

@@ -60,20 +60,24 @@ def demo(
         f"simulated {rec.duration_s:.0f} s of random motion at 100 Hz with MEMS sensor errors "
         f"(seed {seed})"
     )
-    # imported after the first line: every estimator module (numba) takes a while to load
     from margtrack import methods
     from margtrack.bench.runner import evaluate
+    from margtrack.cli.app import err_console
+    from margtrack.cli.compiling import compile_notice
 
     table = Table(title="RMSE against the simulated truth (deg)")
     for col in ("method", "total", "heading", "inclination"):
         table.add_column(col, justify="left" if col == "method" else "right")
-    for name in methods.available():
-        errors = evaluate(methods.create(name), rec)
-        star = " (default)" if name == methods.DEFAULT_METHOD else ""
-        table.add_row(
-            name + star,
-            f"{errors.total_rmse_deg:.2f}",
-            f"{errors.heading_rmse_deg:.2f}",
-            f"{errors.inclination_rmse_deg:.2f}",
-        )
+    names = methods.available()
+    with compile_notice(err_console) as notice:
+        for n, name in enumerate(names, 1):
+            notice.stage = f"{name} ({n} of {len(names)})"
+            errors = evaluate(methods.create(name), rec)
+            star = " (default)" if name == methods.DEFAULT_METHOD else ""
+            table.add_row(
+                name + star,
+                f"{errors.total_rmse_deg:.2f}",
+                f"{errors.heading_rmse_deg:.2f}",
+                f"{errors.inclination_rmse_deg:.2f}",
+            )
     console.print(table)

@@ -34,7 +34,6 @@ from margtrack.estimator.sensor_threads import run_threaded
 from margtrack.estimator.units import UnitProbe
 from margtrack.kernels import contract as kc
 from margtrack.kernels import contract_lanes as kcl
-from margtrack.kernels import jit
 
 Array = NDArray[np.float64]
 
@@ -116,14 +115,14 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         ``frame_major``: lockstep blocks reading (N, S, 3) inputs (:meth:`takes_frames`)."""
         kernel = self.kernel
         if frame_major:
-            return partial(run_threaded, jit.dispatcher(kernel.run_lanes_frames),
+            return partial(run_threaded, kernel.run_lanes_frames,
                            align=kcl.LANES, frame_major=True, n_threads=None if parallel else 1)
         lanes = self._in_lanes(n_sensors)
         run = kernel.run_lanes if lanes else kernel.run
         if not parallel or n_sensors < 2:
             return run
         # numba's dispatcher, not an ahead-of-time build: that would hold the GIL
-        return partial(run_threaded, jit.dispatcher(run), align=kcl.LANES if lanes else 1)
+        return partial(run_threaded, run, align=kcl.LANES if lanes else 1)
 
     def _in_lanes(self, n_sensors: int) -> bool:
         """Whether ``n_sensors`` run in lockstep blocks (``kernels/contract_lanes.py``)."""
@@ -237,9 +236,6 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         self.kernel.update(
             state.rows, state.clock, self._coefs, float(dt), g, a, m, has, q_out, x_out, flags
         )
-        # a kernel has run: the module now names numba's dispatcher (kernels/jit.py), which
-        # the lean path calls without the lazy wrapper in between
-        self._update_one = self.kernel.update_one
         self._last_flags = flags
         self._flag_one = None
         return q_out[0].copy() if one else q_out.copy()

@@ -65,7 +65,7 @@ __all__ = [
 ]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _hold(row, coef, x_out):
     """Extra outputs of the current state: bias (3), diagonal of P (7), code 0."""
     for k in range(3):
@@ -75,12 +75,12 @@ def _hold(row, coef, x_out):
     x_out[10] = 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _start(row, coef, first, qw, qx, qy, qz):
     start_row(row, coef, first, qw, qx, qy, qz)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
     """:func:`filter_step`, its outputs and flags (the field is required: ``has_mag`` is
     always true; a missing one arrives as the zero sentinel)."""

@@ -114,7 +114,7 @@ X_NULL = 6  # 3, with a gyroscope only
 N_X = X_NULL + 3
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _measure_reference(st, o, lanes, coef, ax, ay, az, bx, by, bz):
     """Measure the dip at a usable pair (both non-zero, not parallel) and set the sensor's
     field reference from it (deg and back, as ``frames.mag_reference``); no-op otherwise.
@@ -146,14 +146,14 @@ def _measure_reference(st, o, lanes, coef, ax, ay, az, bx, by, bz):
     st[o + B_HAS_REF * lanes] = 1.0 if usable else 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _start(row, coef, first, qw, qx, qy, qz):
     """(Re)start at q: fresh orientation and correction, the heading awaited from the
     field; a restart (not ``first``) keeps dip and null and raises the gain."""
     _start_at(row, 0, 1, coef, first, qw, qx, qy, qz)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
     """:func:`_start` on the row at ``st[o + j * lanes]`` (``contract_lanes``)."""
     i_q, i_step = o + B_Q * lanes, o + B_STEP * lanes
@@ -173,14 +173,14 @@ def _start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
         rest_null.fresh_one(st, o + B_NULL * lanes, lanes)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
     """One screened sample of 000's Fig. 5 (module docstring); returns the flag bits."""
     return _step_at(row, 0, 1, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, 0,
                     x_out, 0, 1, False)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     """Whether a sample takes one of :func:`_step_at`'s rare branches (the start's turn onto
     explicit references, measuring the field reference, setting the heading): those run
@@ -194,7 +194,7 @@ def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     return st[o + B_AWAIT * lanes] != 0.0 and has_mag and has_ref
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, qa, qo, xa,
              xo, outs, steady):
     """:func:`_step` on the row at ``st[o + j * lanes]``, writing q to ``qa[qo + k * outs]``
@@ -326,14 +326,14 @@ def _step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag
     return 0  # ZERO_MAG: the screening's MAG_IGNORED or MAG_DISTURBED says why
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _hold(row, coef, x_out):
     """Outputs of a held sample (a sensor waiting for a usable sample): the held correction
     (none before the first start), no new one. The sample counts in the schedule."""
     _hold_at(row, 0, 1, coef, x_out, 0, 1)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _hold_at(st, o, lanes, coef, xa, xo, outs):
     """:func:`_hold` on the row at ``st[o + j * lanes]``, outputs at ``xa[xo + k * outs]``."""
     st[o + B_CYCLE * lanes] += 1.0
@@ -364,7 +364,7 @@ def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
                         flags_out)
 
 
-@njit(cache=True, error_model="numpy", _nrt=False, vector_width=contract_lanes.VECTOR_WIDTH)
+@njit(cache=True, error_model="numpy", _nrt=False)
 def lanes_block(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
                 flags_out, frame_major, s_in):
     """One block of sensors in lockstep, vectorised across them (``contract_lanes.block``)."""

@@ -42,13 +42,10 @@ import numpy as np
 
 from margtrack.kernels import contract, screen
 from margtrack.kernels.contract import INITIALISING, K_Q, K_READY, K_SCREEN, K_STARTS
-from margtrack.kernels.jit import njit, select, transpose8
+from margtrack.kernels.jit import njit, select
 
 #: sensors per block: 4 AVX-512 vectors; a block's buffer (about 70 slots) stays in L1
 LANES = 32
-#: lanes per vector the block kernels are compiled for (``jit``'s ``vector_width``): 8
-#: float64 in AVX-512; on a machine with narrower vectors LLVM splits them
-VECTOR_WIDTH = 8
 
 # a lane's slots after its row (offsets from the row's width n_row)
 B_GYR = 0  # 3: this sample's rate, rad/s; screened in place
@@ -134,41 +131,19 @@ def _scalar(start_at, step_at, hold_at, st, o, n_row, coef, scoef, dt, has_mag):
     st[i_f] = f
 
 
-@njit(cache=True, inline="always")
-def _move_slot(rows, s, j, st, k, into_block):
-    """Slot j of row s to ``st[k]``, or back."""
-    if into_block:
-        st[k] = rows[s, j]
-    else:
-        rows[s, j] = st[k]
-
-
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _move_rows(rows, s0, n, n_row, st, into_block):
     """Rows s0 .. s0 + n into the block's interleaved buffer (slot j of lane l at
-    ``st[j * LANES + l]``), or back (``into_block`` False, a constant at each call site).
-
-    A full block moves by 8 x 8 tiles of vector shuffles (``jit.transpose8``: in the live
-    engine's batches of a few frames these moves were a fifth of the kernel's time, as
-    scalar loads and stores 1.5 times a plain copy), the slots past the last whole tile
-    and a partial block's rows by scalar loops."""
+    ``st[j * LANES + l]``), or back (``into_block`` False)."""
     lanes = LANES
-    if n == lanes:
-        tiled = n_row // 8 * 8
-        for lb in range(0, lanes, 8):
-            for jb in range(0, tiled, 8):
-                at_rows, at_block = (s0 + lb) * n_row + jb, jb * lanes + lb
-                if into_block:
-                    transpose8(rows, at_rows, n_row, st, at_block, lanes)
-                else:
-                    transpose8(st, at_block, lanes, rows, at_rows, n_row)
-            for j in range(tiled, n_row):
-                for lane in range(lb, lb + 8):
-                    _move_slot(rows, s0 + lane, j, st, j * lanes + lane, into_block)
+    if into_block:
+        for lane in range(n):
+            for j in range(n_row):
+                st[j * lanes + lane] = rows[s0 + lane, j]
     else:
         for lane in range(n):
             for j in range(n_row):
-                _move_slot(rows, s0 + lane, j, st, j * lanes + lane, into_block)
+                rows[s0 + lane, j] = st[j * lanes + lane]
 
 
 @njit(cache=True, inline="always")

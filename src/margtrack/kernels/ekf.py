@@ -247,18 +247,18 @@ __all__ = [
 
 
 # -- the 7-state filter (001) ------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _start(row, coef, first, qw, qx, qy, qz):
     start_n(row, coef, first, qw, qx, qy, qz, N)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _step(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
     """:func:`step_n` for the 7-state filter (compiled once for n = 7 and called)."""
     return step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out, N)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _hold(row, coef, x_out):
     hold_n(row, coef, x_out, N)
 

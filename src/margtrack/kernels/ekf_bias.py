@@ -45,19 +45,19 @@ __all__ = [
 ]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _start(row, coef, first, qw, qx, qy, qz):
     start_n(row, coef, first, qw, qx, qy, qz, N)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _step(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
     """:func:`margtrack.kernels.ekf.step_n` with the bias state (compiled once for n = 10
     and called)."""
     return step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out, N)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _hold(row, coef, x_out):
     hold_n(row, coef, x_out, N)
 

@@ -51,7 +51,7 @@ from margtrack.kernels.gradient_objective import objective_jacobian as objective
 from margtrack.kernels.jit import njit, to_fixed_tuple
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _outputs(coef, ow, ox, oy, oz, a0, a1, a2, x_out):
     """Euler angles, gravity component and linear acceleration of the output-frame
     orientation o and the (screened) accelerometer sample (004 "Inputs and Outputs")."""
@@ -74,14 +74,14 @@ def _outputs(coef, ow, ox, oy, oz, a0, a1, a2, x_out):
     x_out[X_LIN_ACC + 2] = ez - g * uz
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _start(row, coef, first, qw, qx, qy, qz):
     """(Re)start at q (output frame): the NWU orientation ``c* ⊗ q``. The field reference
     and the held samples belong to the sensors and the field: kept (a fresh row has none)."""
     _start_at(row, 0, 1, coef, first, qw, qx, qy, qz)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
     """:func:`_start` on the row whose slot j is ``st[o + j * lanes]`` (``contract_lanes``)."""
     c = C_TO_FRAME
@@ -90,7 +90,7 @@ def _start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
     st[i], st[i + lanes], st[i + 2 * lanes], st[i + 3 * lanes] = qw, qx, qy, qz
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _advance(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, qa, qo, qs):
     """One screened sample: correction, propagation and fusion; returns the ``ignored``
     bits (:func:`_step` returns them as ``Flag`` bits).
@@ -212,7 +212,7 @@ def _advance(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag
     return bits
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _flags(bits):
     """``Flag`` bits of the filter's ``ignored`` bits (:func:`_step`)."""
     return (screen.ACC_IGNORED if bits & ACC_IGNORED else 0) | (
@@ -220,7 +220,7 @@ def _flags(bits):
     )
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
     """:func:`_advance` and the extra outputs of the new orientation (``update``)."""
     bits = _advance(row, 0, 1, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, 0, 1)
@@ -229,7 +229,7 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
     return _flags(bits)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _step_lean(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_run):
     """:func:`_advance` keeping only what the extra outputs are computed from (``run``):
     x_run (N_LEAN,) the screened accelerometer sample and the ``ignored`` bits."""
@@ -237,7 +237,7 @@ def _step_lean(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out
                          q_out, 0, x_run, 0, 1, False)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _step_lean_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, qa, qo,
                   xa, xo, outs, steady):
     """:func:`_step_lean` on the row at ``st[o + j * lanes]``, writing output k of q to
@@ -250,7 +250,7 @@ def _step_lean_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, ha
     return _flags(bits)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _hold(row, coef, x_out):
     """Outputs of the held orientation (no accelerometer: the linear acceleration is
     ``-g up``, as for a gyro-only step); no ``ignored`` bits."""
@@ -259,19 +259,19 @@ def _hold(row, coef, x_out):
     x_out[X_IGNORED] = 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _hold_lean(row, coef, x_run):
     """:func:`_hold` for ``run``: no accelerometer sample, no ``ignored`` bits."""
     _hold_lean_at(row, 0, 1, coef, x_run, 0, 1)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     """No sample takes a rare branch of the step (``contract_lanes``)."""
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _hold_lean_at(st, o, lanes, coef, xa, xo, outs):
     """:func:`_hold_lean` writing output k to ``xa[xo + k * outs]`` (``contract_lanes``)."""
     for k in range(N_LEAN):
@@ -294,7 +294,7 @@ def expand(coefs, q, x_run, x_out):
             xi[X_IGNORED] = li[L_IGNORED]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _has(coefs, has):
     """The ``has`` bits with a given field dropped when ``use_mag`` is off (then the
     screening does not judge it and a start levels on gravity alone)."""
@@ -316,7 +316,7 @@ def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
                         flags_out)
 
 
-@njit(cache=True, error_model="numpy", _nrt=False, vector_width=contract_lanes.VECTOR_WIDTH)
+@njit(cache=True, error_model="numpy", _nrt=False)
 def lanes_block(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
                 flags_out, frame_major, s_in):
     """One block of sensors in lockstep, vectorised across them (``contract_lanes.block``)."""

@@ -14,12 +14,12 @@ G_Q = contract.N_CONTRACT  # 4: orientation, body to earth
 N_ROW = G_Q + 4
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _start(row, coef, first, qw, qx, qy, qz):
     row[G_Q], row[G_Q + 1], row[G_Q + 2], row[G_Q + 3] = qw, qx, qy, qz
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
     """``q_i = q_{i-1} ⊗ exp(ω_i dt_i / 2)``: exact for a rate constant over the interval;
     ``dt = 0`` leaves q as it was (exp of zero is the identity)."""
@@ -30,7 +30,7 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
     return 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _hold(row, coef, x_out):
     """Nothing to write: plain integration has no extra outputs."""
 

@@ -49,7 +49,7 @@ from margtrack.kernels.robust_layout import *  # noqa: F403 (the layout, as this
 from margtrack.kernels.robust_step import H, outputs_at, step_at
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _sensor_at(st, o, lanes, coef):
     """What is known of a sensor before its first sample: bias 0 with the initial
     variance, the field reference as given (or none). The row's slot j is
@@ -74,7 +74,7 @@ def fresh(rows, coefs):
         _sensor_at(rows[s], 0, 1, coef)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
     """(Re)start at q (output frame): the orientation, low-passes, rest detector and
     start-up afresh; the bias and the field reference only the first time."""
@@ -98,13 +98,13 @@ def _start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
     st[o + R_STILL * lanes] = 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _start(row, coef, first, qw, qx, qy, qz):
     """:func:`_start_at` on one sensor's row."""
     _start_at(row, 0, 1, coef, first, qw, qx, qy, qz)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _hold_at(st, o, lanes, coef, xa, xo, outs):
     """Extra outputs of the current state (before the first start: the held quaternion)."""
     if st[o + contract.K_STARTS * lanes] == 0.0:
@@ -118,7 +118,7 @@ def _hold_at(st, o, lanes, coef, xa, xo, outs):
     outputs_at(st, o, lanes, coef[C_NED] > 0.5, q6w, q6x, q6y, q6z, xa, xo, outs)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _hold(row, coef, x_out):
     """:func:`_hold_at` on one sensor's row."""
     _hold_at(row, 0, 1, coef, x_out, 0, 1)
@@ -135,7 +135,7 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
                    x_out, 0, 1, False)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     """Whether this sample takes one of ``step_at``'s rare branches (no interval, the first
     accelerometer samples since a start, an all-zero accelerometer, gains not cached for
@@ -168,7 +168,7 @@ def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
                         flags_out)
 
 
-@njit(cache=True, error_model="numpy", _nrt=False, vector_width=contract_lanes.VECTOR_WIDTH)
+@njit(cache=True, error_model="numpy", _nrt=False)
 def lanes_block(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
                 flags_out, frame_major, s_in):
     """One block of sensors in lockstep, vectorised across them (``contract_lanes.block``)."""

@@ -86,7 +86,7 @@ def fresh(sc):
         sc[s, S_REF + R_CAND_DIP] = math.nan
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def time_one(clock, max_gap, ti):
     """Interval and clock flag of one timestamp after ``clock[0]`` (nan: none yet); updates it.
 
@@ -119,12 +119,12 @@ def screen_time(t, t_last, max_gap, dt_out, flags_out):
     return clock[0]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _finite3(x, y, z):
     return math.isfinite(x) and math.isfinite(y) and math.isfinite(z)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def ref_gain(step):
     """Gain of the field reference's slow tracking over an interval ``step`` s (0: none).
 
@@ -140,7 +140,7 @@ def screen_one(coef, sc, step, time_flags, g0, g1, g2, a0, a1, a2, m0, m1, m2, h
                         m0, m1, m2, has_mag, has_gyr)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def screen_one_k(coef, sc, step, k_ref, time_flags, g0, g1, g2, a0, a1, a2, m0, m1, m2,
                  has_mag, has_gyr):
     """Screen one sensor's sample; returns (flags, g0, g1, g2, a0, a1, a2, m0, m1, m2).
@@ -155,7 +155,7 @@ def screen_one_k(coef, sc, step, k_ref, time_flags, g0, g1, g2, a0, a1, a2, m0, 
                      m2, has_mag, has_gyr)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def screen_at(coef, st, o, lanes, step, k_ref, time_flags, g0, g1, g2, a0, a1, a2, m0, m1, m2,
               has_mag, has_gyr):
     """:func:`screen_one_k` with the screening state's slot j at ``st[o + j * lanes]``.
@@ -239,7 +239,7 @@ def screen_at(coef, st, o, lanes, step, k_ref, time_flags, g0, g1, g2, a0, a1, a
     return f, g0, g1, g2, a0, a1, a2, m0, m1, m2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _axis_usable(st, o, lanes, step, k, mk, wk, rate2, stuck_s, n_changed, live):
     """:func:`_field_usable` for field axis k (value mk, rate wk about it): updates the
     axis's previous value, hold time, peak and clip level if ``live``; returns whether it
@@ -269,7 +269,7 @@ def _axis_usable(st, o, lanes, step, k, mk, wk, rate2, stuck_s, n_changed, live)
     return ok
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _field_usable(coef, st, o, lanes, step, w0, w1, w2, m0, m1, m2, live):
     """Whether a finite field sample is usable: no axis stuck or at a learned clip level.
     The axes' state moves only if ``live`` (the sample is finite).
@@ -321,7 +321,7 @@ def screen_samples(coef, dt, time_flags, gyr, acc, mag, has_mag, has_gyr, sc,
             flags_out[s, i] = f
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _acc_turn_rate(st, o, lanes, acc_ok, a0, a1, a2, step):
     """Rate (rad/s, body) that turned the accelerometer's direction since the last usable one.
 
@@ -341,7 +341,7 @@ def _acc_turn_rate(st, o, lanes, acc_ok, a0, a1, a2, step):
     )
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _disturbed(coef, st, o, lanes, step, k, acc_ok, a0, a1, a2, m0, m1, m2, live):
     """How far the field is from the tracked reference: 0 close, 1 disturbed, 2 absurd.
     The reference's state moves only if ``live`` (the sample is usable and not skipped).
