@@ -109,8 +109,9 @@ def _write_root(path: Path, result: BodyResult) -> None:
     from margtrack.body.root import RootPath
 
     fixed = np.tile(result.skeleton.root_position_m, (result.t_s.size, 1))
-    RootPath(fixed, np.full((result.t_s.size, 2), np.nan), result.skeleton.frame).write_csv(
-        path, result.t_rel_s, result.skeleton.root)
+    n = result.t_s.size
+    RootPath(fixed, np.full((n, 2), np.nan), result.skeleton.frame, np.ones(n, bool)
+             ).write_csv(path, result.t_rel_s, result.skeleton.root)
 
 
 def write_outputs(result: BodyResult, outdir: str | Path, force: bool = False,

@@ -74,5 +74,9 @@ def summary_lines(result: BodyResult) -> list[str]:
             f"{result.skeleton.root} path from the foot contacts ({axes}; m): start "
             f"({h[0, 0]:.2f}, {h[0, 1]:.2f}), end ({h[-1, 0]:.2f}, {h[-1, 1]:.2f}): "
             f"{root.drift_m:.2f} m from the start, {root.path_length_m:.2f} m walked")
+        if root.guessed.any():
+            lines.append(f"  no foot in stance by the gait events in "
+                         f"{100 * root.guessed.mean():.0f} % of the frames: the lower foot "
+                         "was taken as the anchor there")
     lines += [f"note: {n}" for n in result.notes]
     return lines

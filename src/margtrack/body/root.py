@@ -185,11 +185,14 @@ class RootPath:
     position_m : (N, 3) m, the root joint, in the earth frame ``frame``.
     weights : (N, 2) the left and right feet's share as the anchor.
     frame : ``"ENU"`` or ``"NED"``.
+    guessed : (N,) bool, frames with no foot in stance by the events, where the lower foot
+        was taken as the anchor.
     """
 
     position_m: Array
     weights: Array
     frame: str
+    guessed: NDArray[np.bool_]
 
     @property
     def horizontal_m(self) -> Array:
@@ -280,6 +283,7 @@ def root_from_contacts(
     lift = skeleton.root_position_m @ up + float(
         np.einsum("nkp,nkpd->nkd", ref_share, ref_pts)[0].mean(axis=0) @ up)
     position += np.outer(lift - np.einsum("nk,nk->n", w, heights), up)
-    position.setflags(write=False)
-    w.setflags(write=False)
-    return RootPath(position, w, skeleton.frame)
+    guessed = ~in_stance.any(axis=1)
+    for arr in (position, w, guessed):
+        arr.setflags(write=False)
+    return RootPath(position, w, skeleton.frame, guessed)
