@@ -76,7 +76,7 @@ def summary_lines(result: BodyResult) -> list[str]:
             f"{root.drift_m:.2f} m from the start, {root.path_length_m:.2f} m walked")
         if root.guessed.any():
             lines.append(f"  no foot in stance by the gait events in "
-                         f"{100 * root.guessed.mean():.0f} % of the frames: the lower foot "
-                         "was taken as the anchor there")
+                         f"{100 * root.guessed.mean():.0f} % of the frames: the foot that "
+                         "looked planted (lower, turning slower) was the anchor there")
     lines += [f"note: {n}" for n in result.notes]
     return lines

@@ -19,14 +19,16 @@ the second term being the chain's vector from the root to that foot at ``t``. Wi
 
 The contact point of a foot is its heel (below the ankle) or its toe (the foot's end),
 whichever is lower, blended over a few millimetres (``blend_m``) so rolling from heel to
-toe moves no joint; a leg without a foot contacts through its last segment's end.
+toe moves no joint; a leg without a foot sensor contacts through the shank's end (the
+ankle, its height above the floor taken from the reference pose).
 
 The anchor weights ``w`` (:func:`anchor_weights`) come from the gait events
 (:mod:`margtrack.body.gait`): a foot is in stance from its heel strike to its toe off.
 With one foot in stance it is the anchor; in double support the anchor passes from the
 trailing foot to the foot that struck last, linearly over ``switch_s`` (or until the
 trailing foot's toe off, if sooner); with no foot in stance by the events (a missed heel
-strike, or a flight phase) the lower foot is the anchor.
+strike, a turn on the spot, a flight phase) the anchor is the foot that looks planted:
+lower and turning slower than the other.
 """
 
 from __future__ import annotations
@@ -49,6 +51,10 @@ Array = NDArray[np.float64]
 __all__ = ["RootPath", "anchor_weights", "contact_points", "root_from_contacts", "stance"]
 
 SIDES = ("left", "right")
+#: Scales of the soft guess of the planted foot where the events show no stance: height
+#: (the chain's heights are good to a centimetre or two) and turning rate.
+_GUESS_HEIGHT_M = 0.02
+_GUESS_RATE_RAD_S = 0.5
 
 
 def stance(t_s: ArrayLike, heel_strike_s: ArrayLike, toe_off_s: ArrayLike
@@ -92,8 +98,8 @@ def anchor_weights(t_s: ArrayLike, in_stance: ArrayLike, since_s: ArrayLike,
     t_s : (N,) s, strictly increasing.
     in_stance : (N, K) bool, each foot's stance (:func:`stance`).
     since_s : (N, K) s, when each stance began (``-inf`` from the start, NaN in swing).
-    lower : (N, K) weights of the feet by height (the lower foot near 1), used when no
-        foot is in stance.
+    lower : (N, K) weights of the feet as the planted one (e.g. by height), rows summing
+        to 1, used when no foot is in stance.
     switch_s : s, how long the anchor takes to pass to the foot that just struck: the
         trailing mean over ``round(switch_s / dt)`` frames (median ``dt``) of the target.
     """
@@ -118,8 +124,9 @@ def anchor_weights(t_s: ArrayLike, in_stance: ArrayLike, since_s: ArrayLike,
     idx = np.arange(n)
     first = np.maximum(idx + 1 - span, 0)
     w = (cum[idx + 1] - cum[first]) / (idx + 1 - first)[:, None]
-    # a foot that has left the floor anchors nothing
-    w = np.where(some[:, None], w * st, w)
+    # a foot that has left the floor anchors nothing; with no foot in stance the guess
+    # (soft already) is taken as it is, not blended with a foot that just left
+    w = np.where(some[:, None], w * st, target)
     total = w.sum(axis=1, keepdims=True)
     return np.where(total > 0, w / np.where(total > 0, total, 1.0), target)
 
@@ -130,10 +137,10 @@ def _soft_lower(a: Array, b: Array, blend_m: float) -> Array:
 
 
 def leg_ends(skeleton: Skeleton) -> dict[str, str]:
-    """Each leg's last segment in ``skeleton`` (foot, else shank, else thigh), by side."""
+    """Each leg's contact segment in ``skeleton`` (the foot, else the shank), by side."""
     out = {}
     for side in SIDES:
-        for seg in (f"{side}_foot", f"{side}_shank", f"{side}_thigh"):
+        for seg in (f"{side}_foot", f"{side}_shank"):
             if seg in skeleton.names:
                 out[side] = seg
                 break
@@ -153,13 +160,13 @@ def contact_points(skeleton: Skeleton, q_segment: ArrayLike, blend_m: float = 0.
     Returns
     -------
     points : (N, 2, P, 3) m, the candidate points of each leg (left, right) relative to the
-        root: heel and toe for a foot (P = 2), the end twice for another segment.
+        root: heel and toe for a foot (P = 2), the ankle twice for a shank.
     share : (N, 2, P) weights of the points (the lower one near 1), summing to 1.
     """
     ends = leg_ends(skeleton)
     if set(ends) != set(SIDES):
-        raise ValueError(f"root from foot contacts needs both legs; the skeleton has "
-                         f"{', '.join(skeleton.names)}")
+        raise ValueError(f"root from foot contacts needs a shank or foot on both legs; the "
+                         f"skeleton has {', '.join(skeleton.names)}")
     q = sensor_quaternions(q_segment, skeleton, "q_segment")
     if q.ndim != 3:
         raise ValueError(f"q_segment must have shape (N, S, 4), got {q.shape}")
@@ -176,6 +183,28 @@ def contact_points(skeleton: Skeleton, q_segment: ArrayLike, blend_m: float = 0.
     return pts, np.stack([heel_low, 1.0 - heel_low], axis=-1)
 
 
+def _planted(skeleton: Skeleton, q: Array, t: Array, heights: Array) -> Array:
+    """(N, 2) how likely each foot is the one on the floor, by height and by turning rate.
+
+    The lower foot and the foot that turns slower (a planted foot hardly turns; a swinging
+    one turns at several rad/s), each a soft choice over ``_GUESS_HEIGHT_M`` and
+    ``_GUESS_RATE_RAD_S``, multiplied: either clue decides when the other is even (both
+    feet level at the start and end of a swing; both still at mid-swing's turn of the foot).
+    """
+    ends = leg_ends(skeleton)
+    idx = [skeleton.index(ends[s]) for s in SIDES]
+    rate = np.zeros((t.size, 2))
+    if t.size > 1:
+        rate[1:] = quat.angle_between(q[:-1, idx], q[1:, idx]) / np.diff(t)[:, None]
+        rate[0] = rate[1]
+    low = _soft_lower(heights[:, 0], heights[:, 1], _GUESS_HEIGHT_M)
+    slow = _soft_lower(rate[:, 0], rate[:, 1], _GUESS_RATE_RAD_S)
+    left, right = low * slow, (1.0 - low) * (1.0 - slow)
+    total = left + right
+    left = np.where(total > 0, left / np.where(total > 0, total, 1.0), 0.5)
+    return np.stack([left, 1.0 - left], axis=1)
+
+
 @dataclass(frozen=True, eq=False)
 class RootPath:
     """The root's path over N frames (module docstring).
@@ -185,8 +214,8 @@ class RootPath:
     position_m : (N, 3) m, the root joint, in the earth frame ``frame``.
     weights : (N, 2) the left and right feet's share as the anchor.
     frame : ``"ENU"`` or ``"NED"``.
-    guessed : (N,) bool, frames with no foot in stance by the events, where the lower foot
-        was taken as the anchor.
+    guessed : (N,) bool, frames with no foot in stance by the events, where the foot that
+        looked planted was taken as the anchor.
     """
 
     position_m: Array
@@ -267,9 +296,7 @@ def root_from_contacts(
     in_stance = np.stack([p[0] for p in phases], axis=1)
     since = np.stack([p[1] for p in phases], axis=1)
     heights = contact @ up
-    left_low = _soft_lower(heights[:, 0], heights[:, 1], blend_m)
-    w = anchor_weights(t, in_stance, since, np.stack([left_low, 1.0 - left_low], axis=1),
-                       switch_s)
+    w = anchor_weights(t, in_stance, since, _planted(skeleton, q, t, heights), switch_s)
     # each step weighted by the contact at its start: a foot that strikes at frame n was
     # still swinging from n - 1, and one that leaves at n was still on the floor
     step = np.einsum("nkp,nkpd->nkd", share[:-1], np.diff(pts, axis=0))

@@ -381,15 +381,16 @@ def process_body(
                         cal.offsets)
     gait = analyse_gait(t_rel, skeleton, gyr)
     root = None
-    if len(leg_ends(skeleton)) == 2:
+    if len(leg_ends(skeleton)) == 2 and set(gait) == {"left", "right"}:
         root = root_from_contacts(
             skeleton, pose.q_segment, t_rel, {s: g.heel_strike_s for s, g in gait.items()},
             {s: g.toe_off_s for s, g in gait.items()})
         moved = root.position_m - skeleton.root_position_m
         pose = replace(pose, joints_m=pose.joints_m + moved[:, None],
                        ends_m=pose.ends_m + moved[:, None])
-    elif gait:
-        notes.append("the root stays put: moving it with the foot contacts needs both legs")
+    elif any(seg.endswith("_thigh") for seg in skeleton.names):
+        notes.append("the root stays put: moving it with the foot contacts needs a shank or "
+                     "foot sensor on each leg")
     result = BodyResult(skeleton, cal, t, q, pose, angles, window, tuple(reports),
                         np.stack(flag_cols, axis=1), method_name, dict(used_params), axis,
                         tuple(notes), gyr, gait, root)
