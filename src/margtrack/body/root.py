@@ -90,7 +90,7 @@ def stance(t_s: ArrayLike, heel_strike_s: ArrayLike, toe_off_s: ArrayLike
 
 
 def anchor_weights(t_s: ArrayLike, in_stance: ArrayLike, since_s: ArrayLike,
-                   lower: ArrayLike, switch_s: float = 0.1) -> Array:
+                   planted: ArrayLike, switch_s: float = 0.1) -> Array:
     """(N, K) weights of K feet as the anchor, each row summing to 1 (module docstring).
 
     Parameters
@@ -98,22 +98,23 @@ def anchor_weights(t_s: ArrayLike, in_stance: ArrayLike, since_s: ArrayLike,
     t_s : (N,) s, strictly increasing.
     in_stance : (N, K) bool, each foot's stance (:func:`stance`).
     since_s : (N, K) s, when each stance began (``-inf`` from the start, NaN in swing).
-    lower : (N, K) weights of the feet as the planted one (e.g. by height), rows summing
-        to 1, used when no foot is in stance.
+    planted : (N, K) how likely each foot is the one on the floor, rows summing to 1,
+        used where no foot is in stance.
     switch_s : s, how long the anchor takes to pass to the foot that just struck: the
         trailing mean over ``round(switch_s / dt)`` frames (median ``dt``) of the target.
     """
     t = np.asarray(t_s, dtype=np.float64)
     st = np.asarray(in_stance, dtype=bool)
     since = np.asarray(since_s, dtype=np.float64)
-    low = np.asarray(lower, dtype=np.float64)
-    if st.ndim != 2 or st.shape[0] != t.size or since.shape != st.shape or low.shape != st.shape:
-        raise ValueError(f"in_stance, since_s and lower must all have shape ({t.size}, K); "
-                         f"got {st.shape}, {since.shape}, {low.shape}")
+    guess = np.asarray(planted, dtype=np.float64)
+    if (st.ndim != 2 or st.shape[0] != t.size or since.shape != st.shape
+            or guess.shape != st.shape):
+        raise ValueError(f"in_stance, since_s and planted must all have shape ({t.size}, K); "
+                         f"got {st.shape}, {since.shape}, {guess.shape}")
     switch = positive(switch_s, "switch_s")
     n, k = st.shape
     latest = np.where(st, np.nan_to_num(since, nan=-np.inf), -np.inf)
-    target = low.copy()
+    target = guess.copy()
     some = st.any(axis=1)
     # the foot in stance that struck last; a tie (standing from the start) shares the weight
     lead = st & (latest == latest.max(axis=1, keepdims=True))
@@ -131,9 +132,9 @@ def anchor_weights(t_s: ArrayLike, in_stance: ArrayLike, since_s: ArrayLike,
     return np.where(total > 0, w / np.where(total > 0, total, 1.0), target)
 
 
-def _soft_lower(a: Array, b: Array, blend_m: float) -> Array:
-    """Weight of ``a`` being the lower of two heights (1 well below ``b``, 0.5 level)."""
-    return 0.5 * (1.0 + np.tanh((b - a) / blend_m))
+def _soft_smaller(a: Array, b: Array, scale: float) -> Array:
+    """Weight of ``a`` being the smaller of two values: 1 well below ``b``, 0.5 equal."""
+    return 0.5 * (1.0 + np.tanh((b - a) / scale))
 
 
 def leg_ends(skeleton: Skeleton) -> dict[str, str]:
@@ -179,7 +180,7 @@ def contact_points(skeleton: Skeleton, q_segment: ArrayLike, blend_m: float = 0.
         heel = (end @ up) * up if ends[side].endswith("_foot") else end
         pts[:, j] = joints[:, i, None, :] + quat.rotate(q[:, i, None, :], np.stack([heel, end]))
     h = pts @ up
-    heel_low = _soft_lower(h[..., 0], h[..., 1], positive(blend_m, "blend_m"))
+    heel_low = _soft_smaller(h[..., 0], h[..., 1], positive(blend_m, "blend_m"))
     return pts, np.stack([heel_low, 1.0 - heel_low], axis=-1)
 
 
@@ -197,8 +198,8 @@ def _planted(skeleton: Skeleton, q: Array, t: Array, heights: Array) -> Array:
     if t.size > 1:
         rate[1:] = quat.angle_between(q[:-1, idx], q[1:, idx]) / np.diff(t)[:, None]
         rate[0] = rate[1]
-    low = _soft_lower(heights[:, 0], heights[:, 1], _GUESS_HEIGHT_M)
-    slow = _soft_lower(rate[:, 0], rate[:, 1], _GUESS_RATE_RAD_S)
+    low = _soft_smaller(heights[:, 0], heights[:, 1], _GUESS_HEIGHT_M)
+    slow = _soft_smaller(rate[:, 0], rate[:, 1], _GUESS_RATE_RAD_S)
     left, right = low * slow, (1.0 - low) * (1.0 - slow)
     total = left + right
     left = np.where(total > 0, left / np.where(total > 0, total, 1.0), 0.5)
