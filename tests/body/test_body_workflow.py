@@ -290,6 +290,9 @@ def test_write_refuses_existing_files_and_is_atomic(north, tmp_path: Path) -> No
         north.write(recording / "out", inputs=[recording])
     with pytest.raises(FileNotFoundError, match="does not exist"):
         north.write(tmp_path / "a" / "b")
+    with pytest.raises(ValueError, match="the BVH unit must be one of cm, m, got 'mm'"):
+        north.write(tmp_path / "c", bvh_unit="mm")
+    assert not (tmp_path / "c").exists()  # refused before anything is written
 
 
 @pytest.mark.kernel

@@ -51,8 +51,8 @@ from margtrack.body.skeleton import Skeleton
 
 Array = NDArray[np.float64]
 
-__all__ = ["SIDES", "SideGait", "analyse_gait", "detect_events", "gait_summary_lines",
-           "normalise_cycles", "sagittal_rate", "segment_rates", "side_gait",
+__all__ = ["SIDES", "SideGait", "analyse_gait", "detect_events", "gait_segment",
+           "gait_summary_lines", "normalise_cycles", "sagittal_rate", "segment_rates", "side_gait",
            "write_gait_cycles_csv"]
 
 SIDES = ("left", "right")

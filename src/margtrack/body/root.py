@@ -48,7 +48,8 @@ from margtrack.body.skeleton import Skeleton
 
 Array = NDArray[np.float64]
 
-__all__ = ["RootPath", "anchor_weights", "contact_points", "root_from_contacts", "stance"]
+__all__ = ["RootPath", "anchor_weights", "contact_points", "leg_ends", "root_from_contacts",
+           "stance"]
 
 SIDES = ("left", "right")
 #: Scales of the soft guess of the planted foot where the events show no stance: height
