@@ -57,6 +57,20 @@ def test_xio_walk_end_to_end(xio_folder: Path, tmp_path: Path) -> None:
     left = _knee_peaks(result.output, "left")
     assert abs(max(left) - 134.0) < 4.0 and abs(left[0] - 63.0) < 4.0
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES.values())
+    # gait cycles per side and the pelvis path, with the BVH's unit and Blender's scale
+    for side in ("left", "right"):
+        line = re.search(rf"^  {side}\s+(\d+) cycles \({side}_shank\): stride .* cadence "
+                         r"([\d.]+) ± [\d.]+ steps/min, stance ([\d.]+) ± [\d.]+ %$",
+                         result.output, re.M)
+        assert line, result.output
+        assert int(line[1]) >= 2 and 80 < float(line[2]) < 140 and 50 < float(line[3]) < 75
+    assert re.search(r"pelvis path from the foot contacts \(east, north; m\): start "
+                     r"\(0\.00, 0\.00\), end .* m walked", result.output)
+    assert ("motion.bvh lengths in cm (--bvh-unit cm, the default): import it into Blender "
+            "with scale 0.01") in result.output
+    cycles = (out / "gait_cycles.csv").read_text().splitlines()
+    assert cycles[0] == ("side,cycle,start (s),toe_off (s),end (s),duration (s),stance (%),"
+                         "cadence (steps/min)") and len(cycles) >= 5
     again = _invoke(xio_folder, "-o", out)
     assert again.exit_code == 2
     assert "already holds" in again.output and "--force" in again.output
@@ -94,6 +108,36 @@ def test_per_sensor_files_with_a_map(walk, tmp_path: Path) -> None:
 
 
 @pytest.mark.kernel
+def test_bvh_unit_and_fewer_than_two_gait_cycles(walk, tmp_path: Path) -> None:
+    # the simulated walk in place swings its legs sinusoidally: no heel strike and toe off
+    # pattern of a real gait, so no cycle; that is a message, and the rest is written
+    bvhio = pytest.importorskip("bvhio", reason="bvhio (dev extra) reads the BVH back")
+    folder = _files(tmp_path / "rec", walk, {seg: seg for seg in walk[1]}, ".h5")
+    roots = {}
+    for unit in ("cm", "m"):
+        out = tmp_path / unit
+        result = _invoke(folder, "-o", out, "--heading", "north", "--bvh-unit", unit)
+        assert result.exit_code == 0, result.output
+        assert "fewer than two, so no cycle average for this side" in result.output
+        scale = "0.01" if unit == "cm" else "1"
+        assert f"motion.bvh lengths in {unit} (--bvh-unit {unit}" in result.output
+        assert f"import it into Blender with scale {scale}" in result.output
+        assert not (out / "gait_cycles.png").exists()
+        assert (out / "gait_cycles.csv").read_text().count("\n") == 1  # the header
+        hierarchy = bvhio.readAsHierarchy(str(out / "motion.bvh"))
+        pelvis = next(j for j, _, _ in hierarchy.layout() if j.Name == "pelvis")
+        got = []
+        for f in (0, 300, 599):
+            hierarchy.loadPose(f, recursive=True)
+            got.append(np.array(pelvis.PositionWorld, dtype=np.float64))
+        roots[unit] = np.array(got)
+        table = np.loadtxt(out / "pelvis_position.csv", delimiter=",", skiprows=1)
+        assert table.shape == (600, 6)
+    np.testing.assert_allclose(roots["cm"], 100.0 * roots["m"], rtol=1e-6, atol=1e-4)
+    assert 0.8 < roots["m"][0, 1] < 1.0  # hip height, Y up, in m
+
+
+@pytest.mark.kernel
 def test_live_recording_input(walk, tmp_path: Path) -> None:
     live = pytest.importorskip("margtrack.io.live_hdf5",
                                reason="the live recording format (helper B3) is not present")
@@ -122,6 +166,8 @@ def test_bad_input_is_refused_with_the_fix(walk, tmp_path: Path) -> None:
     assert result.exit_code == 2 and "--heading must be 'pelvis' or 'north'" in result.output
     result = _invoke(empty, "-o", tmp_path / "out", "--pose-window", "1;2")
     assert result.exit_code == 2 and "--pose-window takes START,END" in result.output
+    result = _invoke(empty, "-o", tmp_path / "out", "--bvh-unit", "mm")
+    assert result.exit_code == 2 and "--bvh-unit must be cm or m, got 'mm'" in result.output
     result = _invoke(empty, "-o", tmp_path / "missing" / "out")
     assert result.exit_code == 2 and "does not exist" in result.output
     assert not (tmp_path / "out").exists()  # nothing written on refusal

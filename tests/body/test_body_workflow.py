@@ -266,7 +266,10 @@ def test_read_body_errors(tmp_path: Path) -> None:
 def test_write_refuses_existing_files_and_is_atomic(north, tmp_path: Path) -> None:
     out = tmp_path / "out"
     paths = north.write(out)
-    assert sorted(p.name for p in paths.values()) == sorted(OUTPUT_FILES.values())
+    # the simulated walk in place has no heel strikes: no gait cycle to draw
+    expected = sorted(set(OUTPUT_FILES.values()) - {"gait_cycles.png"})
+    assert not any(g.n_cycles for g in north.gait.values())
+    assert sorted(p.name for p in paths.values()) == expected
     t, names, deg = body.read_joint_angles_csv(paths["angles"])
     np.testing.assert_allclose(deg[:, names.index("left_knee_flexion")],
                                north.angles.degrees("left_knee")[:, 0], atol=1e-7)
@@ -278,14 +281,18 @@ def test_write_refuses_existing_files_and_is_atomic(north, tmp_path: Path) -> No
     with pytest.raises(FileExistsError, match=r"joint_angles.csv.*kept; pass --force"):
         north.write(out)
     assert paths["angles"].stat().st_mtime_ns == before
+    (out / "gait_cycles.png").write_bytes(b"a former run's figure")
     north.write(out, force=True)
-    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES.values())  # no temp
+    assert sorted(p.name for p in out.iterdir()) == expected  # no temp, no stale figure
     recording = tmp_path / "rec"
     recording.mkdir()
     with pytest.raises(ValueError, match="inside the input"):
         north.write(recording / "out", inputs=[recording])
     with pytest.raises(FileNotFoundError, match="does not exist"):
         north.write(tmp_path / "a" / "b")
+    with pytest.raises(ValueError, match="the BVH unit must be one of cm, m, got 'mm'"):
+        north.write(tmp_path / "c", bvh_unit="mm")
+    assert not (tmp_path / "c").exists()  # refused before anything is written
 
 
 @pytest.mark.kernel

@@ -7,8 +7,16 @@ joint_angles.csv       ``t (s)`` then ``<joint>_<component> (deg)`` (:mod:`.expo
 orientations.sto       segment orientations for OpenSense: ``pelvis_imu``, ``femur_r_imu``,
                        ``tibia_r_imu``, ``calcn_r_imu``... (``head_imu`` with a head sensor),
                        OpenSim axes (:mod:`.export_sto`)
-motion.bvh             the motion of the skeleton, cm, Y up (:mod:`.export_bvh`)
+pelvis_position.csv    the companion of the .sto: ``t (s)``, the root's earth-frame
+                       position (m) from the foot contacts and each foot's anchor share
+                       (:mod:`.root`)
+motion.bvh             the motion of the skeleton, the root moving with the foot contacts,
+                       Y up, in cm (default) or m (``bvh_unit``) (:mod:`.export_bvh`)
 joint_angles.png       the joint-angle curves, calibration window shaded (:mod:`.plot`)
+gait_cycles.csv        one row per gait cycle: side, start, toe off, end (s), stance %,
+                       cadence (:mod:`.gait`)
+gait_cycles.png        the joint angles over 0-100 % of the gait cycle, mean ± SD per side;
+                       not written when no side has two cycles (the summary says why)
 sensor_flags.csv       ``t (s)`` then ``<sensor> (flag bits)`` per common frame: bits of
                        :class:`margtrack.estimator.Flag` (0: clean)
 summary.txt            the printed summary
@@ -28,10 +36,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from margtrack.body.export_bvh import write_bvh
+from margtrack.body.export_bvh import BVH_UNITS, write_bvh
 from margtrack.body.export_csv import write_joint_angles_csv
 from margtrack.body.export_sto import write_sto
-from margtrack.body.plot import plot_joint_angles
+from margtrack.body.gait import write_gait_cycles_csv
+from margtrack.body.plot import plot_gait_cycles, plot_joint_angles
 
 if TYPE_CHECKING:
     from margtrack.body.workflow import BodyResult
@@ -42,8 +51,11 @@ __all__ = ["OUTPUT_FILES", "check_outputs", "write_outputs"]
 OUTPUT_FILES = {
     "angles": "joint_angles.csv",
     "sto": "orientations.sto",
+    "root": "pelvis_position.csv",
     "bvh": "motion.bvh",
     "plot": "joint_angles.png",
+    "gait": "gait_cycles.csv",
+    "gait_plot": "gait_cycles.png",
     "flags": "sensor_flags.csv",
     "summary": "summary.txt",
 }
@@ -90,30 +102,52 @@ def _write_flags(path: Path, result: BodyResult) -> None:
                header=",".join(["t (s)", *names]), comments="")
 
 
-def write_outputs(result: BodyResult, outdir: str | Path, force: bool = False,
-                  inputs: Iterable[str | Path] = ()) -> dict[str, Path]:
-    """Write every file of the module table into ``outdir`` (created if missing).
+def _write_root(path: Path, result: BodyResult) -> None:
+    if result.root is not None:
+        result.root.write_csv(path, result.t_rel_s, result.skeleton.root)
+        return
+    from margtrack.body.root import RootPath
 
-    Returns the written paths by kind. Raises before writing anything if
-    :func:`check_outputs` does.
+    fixed = np.tile(result.skeleton.root_position_m, (result.t_s.size, 1))
+    n = result.t_s.size
+    RootPath(fixed, np.full((n, 2), np.nan), result.skeleton.frame, np.ones(n, bool)
+             ).write_csv(path, result.t_rel_s, result.skeleton.root)
+
+
+def write_outputs(result: BodyResult, outdir: str | Path, force: bool = False,
+                  inputs: Iterable[str | Path] = (), bvh_unit: str = "cm") -> dict[str, Path]:
+    """Write the files of the module table into ``outdir`` (created if missing).
+
+    ``bvh_unit`` is the BVH's length unit, ``"cm"`` or ``"m"``. Returns the written paths
+    by kind (``gait_cycles.png`` only when a side has two cycles or more). Raises before
+    writing anything if :func:`check_outputs` does.
     """
     from margtrack.io.safe_output import atomic_output
 
+    if bvh_unit not in BVH_UNITS:
+        raise ValueError(f"the BVH unit must be one of {', '.join(BVH_UNITS)}, got {bvh_unit!r}")
     paths = check_outputs(outdir, inputs, force)
     Path(outdir).mkdir(exist_ok=True)
     t = result.t_rel_s
     sk, q_seg = result.skeleton, result.pose.q_segment
+    root = None if result.root is None else result.root.position_m
     writers = {
         "angles": lambda p: write_joint_angles_csv(p, t, result.angles),
         "sto": lambda p: write_sto(p, sk, t, q_seg),
-        "bvh": lambda p: write_bvh(p, sk, q_seg, 1.0 / result.rate_hz),
+        "root": lambda p: _write_root(p, result),
+        "bvh": lambda p: write_bvh(p, sk, q_seg, 1.0 / result.rate_hz, root, unit=bvh_unit),
         "plot": lambda p: plot_joint_angles(
             p, t, result.angles, window_s=(t[result.window.start], t[result.window.stop - 1]),
             title=f"joint angles ({result.method}, {len(result.sensors)} sensors)"),
+        "gait": lambda p: write_gait_cycles_csv(p, result.gait),
+        "gait_plot": lambda p: plot_gait_cycles(p, t, result.angles, result.gait),
         "flags": lambda p: _write_flags(p, result),
         "summary": lambda p: p.write_text("\n".join(result.summary()) + "\n",
                                           encoding="utf-8"),
     }
+    if not any(g.n_cycles >= 2 for g in result.gait.values()):
+        stale = paths.pop("gait_plot")
+        stale.unlink(missing_ok=True)  # a former run's figure (force) would mislead
     for kind, path in paths.items():
         with atomic_output(path) as tmp:
             writers[kind](tmp)

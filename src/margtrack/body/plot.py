@@ -1,20 +1,24 @@
-"""Drawings of body-model results: stick figures and joint-angle curves (matplotlib, lazily)."""
+"""Drawings of body-model results: stick figures, joint-angle curves over time and over the
+gait cycle (matplotlib, imported lazily)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from margtrack import quaternion as quat
+from margtrack.body.gait import SideGait, normalise_cycles
 from margtrack.body.joints import JointAngles
 from margtrack.body.skeleton import Skeleton, body_axes
 
 Array = NDArray[np.float64]
 
-__all__ = ["bones", "plot_joint_angles", "plot_stick_figures"]
+__all__ = ["bones", "plot_gait_cycles", "plot_joint_angles", "plot_stick_figures"]
+
+_SIDE_COLOURS = {"left": "tab:blue", "right": "tab:red"}
 
 
 def bones(skeleton: Skeleton, joints_m: Array, ends_m: Array) -> Array:
@@ -132,13 +136,13 @@ def plot_joint_angles(
                              squeeze=False)  # fixed margins: a layout engine costs seconds
     fig.subplots_adjust(left=0.06, right=0.99, bottom=0.55 / height_in,
                         top=1.0 - 0.6 / height_in, wspace=0.18, hspace=0.35)
-    colours = {"left": "tab:blue", "right": "tab:red"}
     for j, (name, comps) in enumerate(zip(angles.names, angles.components, strict=True)):
         side, kind = name.split("_", 1)
         row = kinds.index(kind)
         for k, comp in enumerate(comps):
             ax = axes[row, k]
-            ax.plot(t, np.degrees(a[:, j, k]), color=colours.get(side, "k"), lw=1, label=side)
+            ax.plot(t, np.degrees(a[:, j, k]), color=_SIDE_COLOURS.get(side, "k"), lw=1,
+                    label=side)
             ax.set_title(f"{kind} {comp.replace('_', ' ')}", fontsize=9)
     for ax in axes.flat:
         if window_s is not None:
@@ -151,5 +155,78 @@ def plot_joint_angles(
     axes[0, 0].legend(fontsize=8, loc="upper right")
     if title:
         fig.suptitle(title)
+    fig.savefig(path, dpi=100, format="png")
+    plt.close(fig)
+
+
+def plot_gait_cycles(
+    path: str | Path,
+    t_s: ArrayLike,
+    angles: JointAngles,
+    gait: Mapping[str, SideGait],
+    title: str = "",
+) -> None:
+    """Save a PNG of the leg joint angles over 0-100 % of the gait cycle, mean ± SD per side.
+
+    Each side's joints are normalised over that side's cycles (heel strike to heel strike,
+    :func:`margtrack.body.gait.normalise_cycles`); left in blue, right in red, overlaid,
+    the mean toe off as a dashed line. A side with fewer than two cycles is left out (its
+    :meth:`SideGait.message` says why); ``ValueError`` when no side has two.
+
+    Parameters
+    ----------
+    path : the PNG to write (written as PNG whatever its extension).
+    t_s : (N,) s, the time axis of ``angles`` and of the cycles.
+    angles : :class:`JointAngles` over N frames (hip, knee, ankle per side).
+    gait : side -> :class:`SideGait` (:func:`margtrack.body.gait.analyse_gait`).
+    title : figure title; default one naming the cycles per side.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.asarray(t_s, dtype=np.float64)
+    a = np.degrees(np.asarray(angles.angles_rad))
+    sides = {s: g for s, g in gait.items() if g.n_cycles >= 2}
+    legs = [j for j, n in enumerate(angles.names) if n.split("_", 1)[0] in sides
+            and n.split("_", 1)[1] in ("hip", "knee", "ankle")]
+    if not sides or not legs:
+        raise ValueError("no side has two gait cycles with hip, knee or ankle angles: "
+                         "nothing to average")
+    kinds = [k for k in ("hip", "knee", "ankle")
+             if any(angles.names[j].endswith(f"_{k}") for j in legs)]
+    height_in = 0.9 + 2.2 * len(kinds)
+    fig, axes = plt.subplots(len(kinds), 3, figsize=(12, height_in), sharex=True,
+                             squeeze=False)
+    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.55 / height_in,
+                        top=1.0 - 0.6 / height_in, wspace=0.18, hspace=0.35)
+    pct = np.linspace(0.0, 100.0, 101)
+    for side, g in sides.items():
+        cycles = normalise_cycles(t, a, g.start_s, g.end_s, pct.size)  # (C, 101, J, 3)
+        mean, sd = cycles.mean(axis=0), cycles.std(axis=0, ddof=1)
+        colour = _SIDE_COLOURS.get(side, "k")
+        for j in legs:
+            name = angles.names[j]
+            if not name.startswith(f"{side}_"):
+                continue
+            kind = name.split("_", 1)[1]
+            for k, comp in enumerate(angles.components[j]):
+                ax = axes[kinds.index(kind), k]
+                ax.fill_between(pct, mean[:, j, k] - sd[:, j, k], mean[:, j, k] + sd[:, j, k],
+                                color=colour, alpha=0.2, lw=0)
+                ax.plot(pct, mean[:, j, k], color=colour, lw=1.2,
+                        label=f"{side} ({g.n_cycles} cycles)")
+                ax.axvline(float(g.stance_pct.mean()), color=colour, ls="--", lw=0.8)
+                ax.set_title(f"{kind} {comp.replace('_', ' ')}", fontsize=9)
+    for ax in axes.flat:
+        ax.grid(alpha=0.3)
+        ax.set_xlim(0.0, 100.0)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("deg")
+    for ax in axes[-1]:
+        ax.set_xlabel("gait cycle (%), heel strike to heel strike")
+    axes[0, 0].legend(fontsize=8, loc="upper right")
+    fig.suptitle(title or "joint angles over the gait cycle: mean ± SD, toe off dashed")
     fig.savefig(path, dpi=100, format="png")
     plt.close(fig)

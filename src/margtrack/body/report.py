@@ -2,8 +2,10 @@
 
 Calibration spread per sensor (largest angle of a pose-window sample from the sensor's
 mean, deg: how still the pose was held), the sensors' rates, magnetometers and flags, the
-range of motion of every joint angle after the calibration window, knee flexion peaks, and
-the notes (warnings) of :func:`margtrack.body.workflow.process_body`.
+range of motion of every joint angle after the calibration window, knee flexion peaks, the
+gait cycles per side (:func:`margtrack.body.gait.gait_summary_lines`), the root's path
+(start, end, drift and path length over the floor), and the notes (warnings) of
+:func:`margtrack.body.workflow.process_body`.
 """
 
 from __future__ import annotations
@@ -11,6 +13,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from margtrack.body.gait import gait_summary_lines
 
 if TYPE_CHECKING:
     from margtrack.body.workflow import BodyResult
@@ -61,5 +65,18 @@ def summary_lines(result: BodyResult) -> list[str]:
             found = "; ".join(f"{v:.0f} at {s:.1f} s" for s, v in zip(times, values,
                                                                       strict=True))
             lines.append(f"  {joint:<11} {found or 'none'}")
+    lines += gait_summary_lines(result.gait)
+    if result.root is not None:
+        root = result.root
+        h = root.position_m[:, :2]  # the horizontal axes of both frames
+        axes = "east, north" if root.frame == "ENU" else "north, east"
+        lines.append(
+            f"{result.skeleton.root} path from the foot contacts ({axes}; m): start "
+            f"({h[0, 0]:.2f}, {h[0, 1]:.2f}), end ({h[-1, 0]:.2f}, {h[-1, 1]:.2f}): "
+            f"{root.drift_m:.2f} m from the start, {root.path_length_m:.2f} m walked")
+        if root.guessed.any():
+            lines.append(f"  no foot in stance by the gait events in "
+                         f"{100 * root.guessed.mean():.0f} % of the frames: the foot that "
+                         "looked planted (lower, turning slower) was the anchor there")
     lines += [f"note: {n}" for n in result.notes]
     return lines

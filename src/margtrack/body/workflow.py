@@ -13,10 +13,14 @@
    ``GAP`` flag, and every frame carries the flags of the sensor samples around it;
 4. calibrates the sensor-to-segment offsets on the reference pose (000, eq. 10): a given
    window, or the first still second, heading from north or from the pelvis sensor;
-5. computes the body pose (000, eqs. 7, 11) and the joint angles (:mod:`.joints`).
+5. computes the body pose (000, eqs. 7, 11) and the joint angles (:mod:`.joints`);
+6. detects the gait events and cycles of each leg from its shank (else foot) gyroscope
+   turned into the segment frame (:mod:`.gait`), and moves the root (pelvis) with the foot
+   contacts (:mod:`.root`; both legs needed, else the root stays put).
 
 The result, :class:`BodyResult`, prints a summary (calibration spread per sensor, range of
-motion per joint, knee flexion peaks) and writes its files (:mod:`margtrack.body.outputs`).
+motion per joint, knee flexion peaks, gait cycles, the root's path) and writes its files
+(:mod:`margtrack.body.outputs`).
 """
 
 from __future__ import annotations
@@ -29,11 +33,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from margtrack.body.gait import SideGait, analyse_gait, segment_rates
 from margtrack.body.joints import JointAngles, joint_angles
 from margtrack.body.kinematics import BodyPose, resample_orientations, track
 from margtrack.body.mapping import BodyMap, assign_segments, parse_axis
 from margtrack.body.offsets import Calibration, Heading, calibrate, still_window
 from margtrack.body.report import summary_lines
+from margtrack.body.root import RootPath, leg_ends, root_from_contacts
 from margtrack.body.skeleton import Skeleton
 from margtrack.recording import Recording
 from margtrack.units import UnitError
@@ -84,7 +90,7 @@ class BodyResult:
     calibration : sensor-to-segment offsets, heading, spread per sensor.
     t_s : (N,) s, the common time base on the sensors' clock; ``t_rel_s`` starts at 0.
     q_sensor : (N, S, 4) sensor to earth, skeleton order.
-    pose : segment orientations and joint positions (m).
+    pose : segment orientations and joint positions (m), the root moving with ``root``.
     angles : joint angles (rad).
     window : the calibration frames (``slice``).
     sensors : one :class:`SensorReport` per segment, skeleton order.
@@ -92,6 +98,11 @@ class BodyResult:
     method, params : the estimation method and its parameters.
     forward_axis : the pelvis sensor's forward axis (heading ``"pelvis"``), else None.
     notes : warnings for people (sensors left out, cropped spans, dead magnetometers...).
+    gyr_segment : (N, S, 3) rad/s, every sensor's gyroscope in its segment frame.
+    gait : ``"left"``/``"right"`` -> :class:`SideGait`, times in s from the first frame
+        (the legs with a shank or foot sensor).
+    root : the root's path from the foot contacts, or None without both legs (the root
+        then stays at ``skeleton.root_position_m``).
     """
 
     skeleton: Skeleton
@@ -107,6 +118,9 @@ class BodyResult:
     params: Mapping[str, Any]
     forward_axis: Array | None
     notes: tuple[str, ...]
+    gyr_segment: Array
+    gait: Mapping[str, SideGait]
+    root: RootPath | None
 
     @property
     def t_rel_s(self) -> Array:
@@ -148,11 +162,11 @@ class BodyResult:
         return summary_lines(self)
 
     def write(self, outdir: str | Path, force: bool = False,
-              inputs: Iterable[str | Path] = ()) -> dict[str, Path]:
+              inputs: Iterable[str | Path] = (), bvh_unit: str = "cm") -> dict[str, Path]:
         """Write the outputs into ``outdir`` (:func:`margtrack.body.outputs.write_outputs`)."""
         from margtrack.body.outputs import write_outputs
 
-        return write_outputs(self, outdir, force=force, inputs=inputs)
+        return write_outputs(self, outdir, force=force, inputs=inputs, bvh_unit=bvh_unit)
 
 
 def _common_rate(recs: list[Recording]) -> float:
@@ -363,9 +377,23 @@ def process_body(
                          ) from None
     pose = track(skeleton, cal, q)
     angles = joint_angles(skeleton, pose.q_segment)
+    gyr = segment_rates(t, [recs[s].t for s in sensors], [recs[s].gyr for s in sensors],
+                        cal.offsets)
+    gait = analyse_gait(t_rel, skeleton, gyr)
+    root = None
+    if len(leg_ends(skeleton)) == 2 and set(gait) == {"left", "right"}:
+        root = root_from_contacts(
+            skeleton, pose.q_segment, t_rel, {s: g.heel_strike_s for s, g in gait.items()},
+            {s: g.toe_off_s for s, g in gait.items()})
+        moved = root.position_m - skeleton.root_position_m
+        pose = replace(pose, joints_m=pose.joints_m + moved[:, None],
+                       ends_m=pose.ends_m + moved[:, None])
+    elif any(seg.endswith("_thigh") for seg in skeleton.names):
+        notes.append("the root stays put: moving it with the foot contacts needs a shank or "
+                     "foot sensor on each leg")
     result = BodyResult(skeleton, cal, t, q, pose, angles, window, tuple(reports),
                         np.stack(flag_cols, axis=1), method_name, dict(used_params), axis,
-                        tuple(notes))
+                        tuple(notes), gyr, gait, root)
     return replace(result, notes=result.notes + tuple(_sanity_notes(result)))
 
 

@@ -43,7 +43,8 @@ def body(
         "--record).")],
     output: Annotated[Path, typer.Option(
         "--output", "-o", help="Output folder (created if missing): joint_angles.csv, "
-        "orientations.sto, motion.bvh, joint_angles.png, sensor_flags.csv, summary.txt.")],
+        "orientations.sto, pelvis_position.csv, motion.bvh, joint_angles.png, "
+        "gait_cycles.csv, gait_cycles.png, sensor_flags.csv, summary.txt.")],
     map_file: Annotated[Path | None, typer.Option(
         "--map", help="TOML map of sensor names to segments (\\[sensors] imu_3 = \"pelvis\"), "
         "for sensors not named after segments.")] = None,
@@ -68,6 +69,9 @@ def body(
     align_start: Annotated[bool, typer.Option(
         "--align-start", help="Re-time every sensor from its first sample (sensors started "
         "together on unsynchronised clocks).")] = False,
+    bvh_unit: Annotated[str, typer.Option(
+        "--bvh-unit", help="Length unit of motion.bvh: cm (the default; Blender's BVH import "
+        "scale 0.01) or m (import scale 1).")] = "cm",
     force: Annotated[bool, typer.Option(
         "--force", help="Replace output files that already exist.")] = False,
     gyr_unit: GyrUnitOption = None,
@@ -77,12 +81,15 @@ def body(
     column: ColumnOption = None,
     profile: ProfileOption = None,
 ) -> None:
-    """Joint angles, OpenSim .sto and BVH from body-worn sensors (000, eqs. 7-11)."""
+    """Joint angles, gait cycles, OpenSim .sto and a walking BVH from body-worn sensors."""
     from margtrack import body as mt_body
+    from margtrack.body.export_bvh import BVH_UNITS
     from margtrack.body.outputs import check_outputs
 
     if heading not in ("pelvis", "north"):
         raise ValueError(f"--heading must be 'pelvis' or 'north', got {heading!r}")
+    if bvh_unit not in BVH_UNITS:
+        raise ValueError(f"--bvh-unit must be cm or m, got {bvh_unit!r}")
     window = _window(pose_window)
     body_map = mt_body.read_body_map(map_file) if map_file is not None else None
     inputs = [path] + [p for p in (map_file, profile) if p is not None]
@@ -99,6 +106,10 @@ def body(
     )
     for line in result.summary():
         console.print(line, markup=False, highlight=False, soft_wrap=True)
-    written = result.write(output, force=force, inputs=inputs)
+    written = result.write(output, force=force, inputs=inputs, bvh_unit=bvh_unit)
     console.print(f"wrote {', '.join(p.name for p in written.values())} to {output}",
+                  markup=False, highlight=False, soft_wrap=True)
+    default = ", the default" if bvh_unit == "cm" else ""
+    console.print(f"motion.bvh lengths in {bvh_unit} (--bvh-unit {bvh_unit}{default}): "
+                  f"import it into Blender with scale {BVH_UNITS[bvh_unit]:g}",
                   markup=False, highlight=False, soft_wrap=True)
