@@ -4,7 +4,7 @@ For each method (Bachmann's filter ``bachmann``, 000 Appendix A, and the default
 ``robust``), in one run on this machine:
 
 1. filter rates on one batch as the engine runs it, S = 100000 sensors x 4 frames: the
-   kernel's multi-sensor entry alone (the one ``run_into`` takes: ``kernel.run_lanes``,
+   kernel's multi-sensor entry alone (the one ``run_into`` takes: ``kernel.lanes``,
    sensors in lockstep blocks, for a method that has it, else ``kernel.run``, over threads
    with the sensors shared among them, ``estimator/sensor_threads.py``) on
    prepared arrays, the engine's hot path (``CompiledEstimator.run_into``: reused buffers,
@@ -134,11 +134,13 @@ def filter_rates(method: str, n_sensors: int = 100_000, n: int = 4) -> dict[str,
     for a in (gyr, acc, mag, *times):  # as run() passes them: the same specialisation
         a.flags.writeable = False
     parallel = n_sensors * n >= PARALLEL_MIN_SAMPLES
-    kernel = est._series_kernel(n_sensors, parallel)  # the entry run_into uses
-    kernel(state.rows, state.clock, est._coefs, times[0], gyr, acc, mag, 3, q, x, flags)
+    # the kernel call run_into makes
+    est._run_kernel(state.rows, state.clock, times[0], gyr, acc, mag, 3, q, x, flags,
+                    parallel=parallel)
     start = time.perf_counter()
     for t in times[1:]:
-        kernel(state.rows, state.clock, est._coefs, t, gyr, acc, mag, 3, q, x, flags)
+        est._run_kernel(state.rows, state.clock, t, gyr, acc, mag, 3, q, x, flags,
+                        parallel=parallel)
     out["kernel"] = reps * n_sensors * n / (time.perf_counter() - start)
     return out
 
@@ -306,7 +308,7 @@ def profile_split(profiler: cProfile.Profile, frames: int) -> str:
     # the kernel called by run_into itself, or over threads (run_threaded, its wall time
     # in this thread: the calling thread's part and the wait for the others)
     kernel = sum(t for (f, _, n), v in entries.items()
-                 if "/kernels/" in f and n in ("run", "run_lanes")
+                 if "/kernels/" in f and n in ("run", "lanes")
                  for (cf, _, cn), (_, _, t, _) in v[4].items()
                  if not (cf.endswith("sensor_threads.py") and cn == "part"))
     kernel += total("estimator/sensor_threads.py", "run_threaded")

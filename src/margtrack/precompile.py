@@ -162,7 +162,7 @@ def _use_variant(name: str, params: dict[str, object], gyr: np.ndarray, acc: np.
     from margtrack.estimator.compiled import LANES_MIN_SENSORS
 
     methods.create(name, params).run(gyr=gyr, acc=acc, mag=mag, rate_hz=100.0)
-    if hasattr(getattr(methods.create(name, params), "kernel", None), "run_lanes"):
+    if getattr(getattr(methods.create(name, params), "kernel", None), "lanes", None) is not None:
         lanes = [np.tile(x, (LANES_MIN_SENSORS, 1, 1)) for x in (gyr, acc, mag)]
         methods.create(name, params).run(gyr=lanes[0], acc=lanes[1], mag=lanes[2],
                                          rate_hz=100.0)

@@ -65,15 +65,27 @@ def _assert_each_alone(name, t, gyr, acc, mag, together, **params):
 
 @pytest.mark.kernel
 @pytest.mark.parametrize("name", LOCKSTEP)
-def test_lockstep_is_the_path_for_many_sensors(name):
-    est = methods.create(name)
+def test_lockstep_is_the_path_for_many_sensors(name, monkeypatch):
+    """From LANES_MIN_SENSORS sensors the kernel's ``lanes`` runs them, whole blocks per
+    thread; below, ``run`` one sensor after the other."""
+    calls = []
     kernel = methods.get(name).kernel
-    assert est._series_kernel(compiled.LANES_MIN_SENSORS, False) is kernel.run_lanes
-    threaded = est._series_kernel(compiled.LANES_MIN_SENSORS, True)
-    assert threaded.func is sensor_threads.run_threaded
-    assert threaded.args == (kernel.run_lanes,)
-    assert threaded.keywords == {"align": contract_lanes.LANES}  # whole blocks per thread
-    assert est._series_kernel(compiled.LANES_MIN_SENSORS - 1, False) is kernel.run
+    for entry in ("run", "lanes"):
+        real = getattr(kernel, entry)
+        monkeypatch.setattr(kernel, entry,
+                            lambda *a, _e=entry, _r=real: calls.append(_e) or _r(*a))
+    aligns = []
+    real_threaded = compiled.run_threaded
+    monkeypatch.setattr(compiled, "run_threaded",
+                        lambda part, n, **k: aligns.append(k["align"]) or real_threaded(part, n,
+                                                                                         **k))
+    t, gyr, acc, mag = _faulty_sensors(n_sensors=compiled.LANES_MIN_SENSORS, duration_s=1.0)
+    methods.create(name).run(gyr=gyr, acc=acc, mag=mag, t=t)
+    assert set(calls) == {"lanes"} and aligns == [contract_lanes.LANES]
+    calls.clear()
+    aligns.clear()
+    methods.create(name).run(gyr=gyr[1:], acc=acc[1:], mag=mag[1:], t=t)
+    assert set(calls) == {"run"} and aligns == [1]
 
 
 def _assert_same_run(a, b):

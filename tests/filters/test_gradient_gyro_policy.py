@@ -137,11 +137,13 @@ def _kernel(gyr, acc, mag, dt, objective, exact, seed=5):
                  gravity_m_s2=9.81)
     f.reset(quat.normalize(np.random.default_rng(seed).normal(size=(1, 4))))
     row = f._state.rows[0]
-    q, x, flags = np.empty((n, 4)), np.empty((n, kernel.N_OUT)), np.empty(n, dtype=np.uint16)
+    q, x, flags = np.empty((n, 4)), np.empty((n, kernel.N_X)), np.empty(n, dtype=np.uint16)
+    coef = f._coefs[contract.N_SCOEF :]
     with np.errstate(over="ignore", under="ignore"):  # numpy scalars when the JIT is off
-        kernel.steps(row, f._coefs[contract.N_SCOEF :], dt, gyr[0], acc[0], mag[0], True,
-                     q, x, flags)  # fmt: skip
-    ignored = x[:, kernel.X_IGNORED].astype(np.int8)
+        for i in range(n):
+            flags[i] = kernel._step(row, coef, dt[i], *gyr[0, i], *acc[0, i], *mag[0, i], True,
+                                    q[i], x[i])
+    ignored = x[:, kernel.L_IGNORED].astype(np.int8)
     # the step's flags are the ignored bits in the schema
     expected = np.where(ignored & ACC_IGNORED, Flag.ACC_IGNORED, 0) | np.where(
         ignored & MAG_REJECTED, Flag.MAG_IGNORED, 0

@@ -2,12 +2,10 @@
 
 A :class:`CompiledEstimator` keeps each sensor's state as one flat row (the contract's
 slots, ``kernels/contract.py``, then the method's own, named by ``state_layout``) and a
-shared clock. Its kernel module provides four ``@njit`` entry points built on
-``kernels/contract.py`` (``run``, ``update`` for S sensors, ``update_one`` for one,
-``start``), so the screening, the (re)starts and the method's step are one compiled call,
-and ``update`` repeated N times equals ``run`` once (the same sample function; ``update``
-and ``update_one`` call it compiled once, the kernel module's ``sample``, ``run`` has it
-inline). Several sensors of a long ``run`` are shared among threads
+shared clock. Its kernel module has the entry points ``contract.entry_points`` generates
+from its step (``run``, ``lanes`` for many sensors in lockstep, ``start``), so the
+screening, the (re)starts and the method's step are one compiled call, and ``update`` is
+``run`` over one sample: N updates equal one run. Several sensors are shared among threads
 (:mod:`~margtrack.estimator.sensor_threads`). ``coefs`` is the screening's
 coefficients followed by the method's (:meth:`CompiledEstimator._coefficients`).
 """
@@ -15,7 +13,6 @@ coefficients followed by the method's (:meth:`CompiledEstimator._coefficients`).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from functools import partial
 from types import ModuleType
 from typing import Any, ClassVar, TypeVar
 
@@ -54,13 +51,14 @@ LANES_MIN_SENSORS = 16
 class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
     """Base of the methods with a compiled per-sample path (module docstring).
 
-    Subclasses set ``kernel`` (the module with ``run``, ``update``, ``update_one``,
-    ``start`` and ``N_ROW``), ``state_layout`` (the method's named row slots), ``outputs_layout``
+    Subclasses set ``kernel`` (the module with ``run``, ``lanes`` (or None), ``start``,
+    ``N_ROW`` and ``N_X``: ``contract.entry_points``), ``state_layout`` (the method's named
+    row slots), ``outputs_layout``
     (names and widths of the per-sample extra outputs) and implement
     :meth:`_coefficients` (the kernel's coefficient vector from the parameters).
 
-    A kernel module that also has ``N_LEAN`` and ``expand(coefs, q, kept, out)`` keeps only
-    ``N_LEAN`` values per sample in ``run``; ``expand`` computes the extra outputs from them
+    A kernel module that also has ``expand(coefs, q, kept, out)`` keeps only ``N_X`` values
+    per sample in ``run``; ``expand`` computes the extra outputs from them
     and the orientations when ``Estimate.outputs`` is first read
     (:class:`~margtrack.estimator.outputs.Outputs`).
     """
@@ -75,8 +73,6 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         super().__init__(params, rate_hz=rate_hz, **param_values)
         self._buffers: tuple[Array, Array, NDArray[np.uint16]] | None = None
         self._has_gyr_bit = 2 if self.uses_gyr else 0
-        self._update_one = self.kernel.update_one
-        self._flag_one: int | None = None
         self._derive()
 
     # -- coefficients, computed once per parameter change -----------------------------------
@@ -92,9 +88,6 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         own = np.asarray(self._coefficients(), dtype=np.float64).ravel()
         self._coefs = np.ascontiguousarray(np.concatenate([screen_part, own]))
         self._dt_default = None if self.rate_hz is None else 1.0 / self.rate_hz
-        width = sum(w for _, w in self.outputs_layout)
-        self._out_one = np.zeros(4 + max(width, 1))
-        self._q_one = self._out_one[:4]  # a view: the lean path copies it out
 
     @Estimator.params.setter  # type: ignore[attr-defined]
     def params(self, value: P) -> None:
@@ -104,34 +97,54 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
     @property
     def flags(self) -> NDArray[np.uint16] | None:
         """(S,) health flags of the last processed sample (:class:`Flag` bits)."""
-        if self._last_flags is None and self._flag_one is not None:
-            return np.array([self._flag_one], dtype=np.uint16)
         return None if self._last_flags is None else self._last_flags.copy()
 
     # -- state ----------------------------------------------------------------------------
-    def _series_kernel(self, n_sensors: int, parallel: bool, frame_major: bool = False) -> Any:
-        """The kernel entry point that runs ``n_sensors`` sensors' series: in lockstep blocks
-        (LANES_MIN_SENSORS), over threads (``parallel``), or one sensor after the other;
-        ``frame_major``: lockstep blocks reading (N, S, 3) inputs (:meth:`takes_frames`)."""
-        kernel = self.kernel
-        if frame_major:
-            return partial(run_threaded, kernel.run_lanes_frames,
-                           align=kcl.LANES, frame_major=True, n_threads=None if parallel else 1)
-        lanes = self._in_lanes(n_sensors)
-        run = kernel.run_lanes if lanes else kernel.run
-        if not parallel or n_sensors < 2:
-            return run
-        # numba's dispatcher, not an ahead-of-time build: that would hold the GIL
-        return partial(run_threaded, run, align=kcl.LANES if lanes else 1)
+    def _has_bits(self, has: int) -> int:
+        """The ``has`` bits the kernel gets (1: a field is given, 2: a rate is given); a
+        method that ignores a given field clears bit 1 here."""
+        return has
 
     def _in_lanes(self, n_sensors: int) -> bool:
         """Whether ``n_sensors`` run in lockstep blocks (``kernels/contract_lanes.py``)."""
-        return n_sensors >= LANES_MIN_SENSORS and hasattr(self.kernel, "run_lanes")
+        return n_sensors >= LANES_MIN_SENSORS and self.kernel.lanes is not None
 
     def takes_frames(self, n_sensors: int) -> bool:
         """Whether :meth:`run_into` reads frame-major inputs of ``n_sensors`` sensors where
         they are (lockstep blocks), rather than from a per-sensor copy."""
-        return self._in_lanes(n_sensors) and hasattr(self.kernel, "run_lanes_frames")
+        return self._in_lanes(n_sensors)
+
+    def _run_kernel(
+        self, rows: Array, clock: Array, t: Array, gyr: Array, acc: Array, mag: Array, has: int,
+        q_out: Array, x_out: Array, flags_out: NDArray[np.uint16], *, parallel: bool,
+        frame_major: bool = False,
+    ) -> None:
+        """The kernel over S sensors' N samples: the clock read once, then the sensors in
+        lockstep blocks (:meth:`_in_lanes`) or one after the other, shared among threads
+        when ``parallel``; ``frame_major``: inputs (N, S, 3) (lockstep blocks only)."""
+        kernel, coefs = self.kernel, self._coefs
+        dts, ks, tflags = kc.clock_series(clock, coefs[screening.kernel.C_MAX_GAP], t)
+        has = self._has_bits(has)
+        n_sensors = rows.shape[0]
+        lanes = self._in_lanes(n_sensors)
+        width = kernel.N_ROW + kcl.N_B + kernel.N_X
+
+        def part(a: int, b: int) -> None:
+            if lanes:
+                scratch = np.empty(width * kcl.LANES)
+                if frame_major:  # the inputs whole, the part's first sensor given
+                    kernel.lanes(scratch, rows[a:b], coefs, dts, ks, tflags, gyr, acc, mag, has,
+                                 q_out[a:b], x_out[a:b], flags_out[a:b], True, a)
+                else:
+                    kernel.lanes(scratch, rows[a:b], coefs, dts, ks, tflags, gyr[a:b],
+                                 acc[a:b], mag[a:b], has, q_out[a:b], x_out[a:b],
+                                 flags_out[a:b], False, 0)
+            else:
+                kernel.run(rows[a:b], coefs, dts, ks, tflags, gyr[a:b], acc[a:b], mag[a:b], has,
+                           q_out[a:b], x_out[a:b], flags_out[a:b])
+
+        run_threaded(part, n_sensors, align=kcl.LANES if lanes else 1,
+                     n_threads=None if parallel and n_sensors > 1 else 1)
 
     def _new_rows(self, n_sensors: int) -> CompiledState:
         rows = np.zeros((n_sensors, self.kernel.N_ROW))
@@ -151,7 +164,6 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         """Forget the state; with ``q0`` ((4,) or (S, 4)) start from that orientation."""
         self._probe = UnitProbe()
         self._last_flags = None
-        self._flag_one = None
         self._buffers = None
         if q0 is None:
             self._state = None
@@ -171,31 +183,10 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
 
         ``dt`` is the time since the previous sample in s (default ``1 / rate_hz``). The
         sample is screened like any other (:attr:`flags` says what was done); over the
-        first samples the units are checked. One sensor's sample after the first ones
-        takes one compiled call (the lean path).
+        first samples the units are checked. One call of the kernel ``run`` over one
+        sample, so N updates equal one ``run``.
         """
-        state = self._state
-        a = np.asarray(acc, dtype=np.float64)
-        if state is not None and self._probe.done and a.shape == (3,) and len(state.rows) == 1:
-            g = a if gyr is None else np.asarray(gyr, dtype=np.float64)
-            m = a if mag is None else np.asarray(mag, dtype=np.float64)
-            if g.shape == (3,) and m.shape == (3,):
-                if dt is None:
-                    dt = self._dt_default
-                    if dt is None:
-                        raise ValueError("update() needs dt (s) or an estimator built with rate_hz")
-                has = (mag is not None) | (self._has_gyr_bit if gyr is not None else 0)
-                self._flag_one = self._update_one(
-                    state.rows, state.clock, self._coefs, dt, g, a, m, has, self._out_one
-                )
-                self._last_flags = None
-                return self._q_one.copy()
-        return self._update_general(gyr, a, mag, dt)
-
-    def _update_general(
-        self, gyr: ArrayLike | None, acc: Array, mag: ArrayLike | None, dt: float | None
-    ) -> Array:
-        """:meth:`update` for S sensors, the first samples (unit check) and odd shapes."""
+        acc = np.asarray(acc, dtype=np.float64)
         one = acc.ndim == 1
         a = acc.reshape(-1, 3)
         g = a if gyr is None else np.asarray(gyr, dtype=np.float64).reshape(-1, 3)
@@ -214,8 +205,9 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
                 f"sensor(s) the state holds; got {np.shape(gyr)}, {np.shape(acc)}, "
                 f"{np.shape(mag)} (reset() first to change the number of sensors)"
             )
+        clock = state.clock[0]
         if dt is None:
-            if np.isfinite(state.clock[0]):
+            if np.isfinite(clock):
                 if self._dt_default is None:
                     raise ValueError("update() needs dt (s) or an estimator built with rate_hz")
                 dt = self._dt_default
@@ -225,20 +217,22 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
             self._probe.add(g[:, None] if self.uses_gyr else None, a[:, None])
         buffers = self._buffers
         if buffers is None or buffers[0].shape[0] != n_sensors:
-            width = sum(w for _, w in self.outputs_layout)
             buffers = self._buffers = (
-                np.empty((n_sensors, 4)),
-                np.empty((n_sensors, max(width, 1))),
-                np.empty(n_sensors, dtype=np.uint16),
+                np.empty((n_sensors, 1, 4)),
+                np.empty((n_sensors, 1, self.run_width)),
+                np.empty((n_sensors, 1), dtype=np.uint16),
             )
         q_out, x_out, flags = buffers
         has = (mag is not None) | (self._has_gyr_bit if gyr is not None else 0)
-        self.kernel.update(
-            state.rows, state.clock, self._coefs, float(dt), g, a, m, has, q_out, x_out, flags
+        t = np.array([0.0 if not np.isfinite(clock) else clock + float(dt)])
+        self._run_kernel(
+            state.rows, state.clock, t, _read_only(np.ascontiguousarray(g[:, None])),
+            _read_only(np.ascontiguousarray(a[:, None])),
+            _read_only(np.ascontiguousarray(m[:, None])), has, q_out, x_out, flags,
+            parallel=False,
         )
-        self._last_flags = flags
-        self._flag_one = None
-        return q_out[0].copy() if one else q_out.copy()
+        self._last_flags = flags[:, 0].copy()
+        return q_out[0, 0].copy() if one else q_out[:, 0].copy()
 
     def _run_arrays(
         self,
@@ -258,19 +252,19 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
                 "reset() first"
             )
         work = self._new_rows(n_sensors) if state is None else state.copy()
-        # a kernel with ``expand`` keeps N_LEAN values per sample, its outputs made on read
-        lean = getattr(self.kernel, "N_LEAN", 0)
+        # a kernel with ``expand`` keeps N_X values per sample, its outputs made on read
+        lean = hasattr(self.kernel, "expand")
         q = np.empty((n_sensors, n, 4))
         extra = np.empty((n_sensors, n, self.run_width))
         flags = np.empty((n_sensors, n), dtype=np.uint16)
         has = (x.mag is not None) | (self._has_gyr_bit if x.gyr is not None else 0)
-        # several sensors: shared among threads (compiled on first use of many sensors)
+        # several sensors: shared among threads
         parallel = n_sensors > 1 and n_sensors * n >= PARALLEL_MIN_SAMPLES
-        run = self._series_kernel(n_sensors, parallel)
-        run(
-            work.rows, work.clock, self._coefs, _read_only(np.ascontiguousarray(x.t)),
+        self._run_kernel(
+            work.rows, work.clock, _read_only(np.ascontiguousarray(x.t)),
             _read_only(x.acc if x.gyr is None else x.gyr), _read_only(x.acc),
             _read_only(x.acc if x.mag is None else x.mag), has, q, extra, flags,
+            parallel=parallel,
         )
         if self._params.strict:
             problem = first_problem(flags)
@@ -278,7 +272,6 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
                 raise ValueError(f"{problem} (strict=True; strict=False flags and skips it)")
         self._state = work
         self._last_flags = flags[:, -1].copy()
-        self._flag_one = None
         outputs: Mapping[str, NDArray[Any]]
         if lean:
             outputs = _deferred_outputs(self, q, extra)
@@ -301,10 +294,9 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
 
     @property
     def run_width(self) -> int:
-        """Values per sample the ``run`` kernel writes: ``kernel.N_LEAN`` for a kernel that
-        computes its extra outputs on read, else the widths of ``outputs_layout`` (at least 1)."""
-        lean = getattr(self.kernel, "N_LEAN", 0)
-        return lean or max(sum(w for _, w in self.outputs_layout), 1)
+        """Values per sample the ``run`` kernel writes (``kernel.N_X``, at least 1): those of
+        ``outputs_layout``, or fewer for a kernel that computes them on read (``expand``)."""
+        return max(self.kernel.N_X, 1)
 
     def run_into(
         self,
@@ -383,18 +375,17 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
             parallel = n_sensors * n >= PARALLEL_MIN_SAMPLES
         if x_width != width and not self._in_lanes(n_sensors):
             x_out = np.empty((n_sensors, n, width))  # the per-sensor kernels write them all
-        run = self._series_kernel(n_sensors, parallel, frame_major)
-        run(
-            state.rows, state.clock, self._coefs, _read_only(np.ascontiguousarray(t)),
+        self._run_kernel(
+            state.rows, state.clock, _read_only(np.ascontiguousarray(t)),
             _read_only(acc if gyr is None else gyr), _read_only(acc),
             _read_only(acc if mag is None else mag), has, q_out, x_out, flags_out,
+            parallel=parallel, frame_major=frame_major,
         )
         if self._params.strict:
             problem = first_problem(flags_out)
             if problem is not None:
                 raise ValueError(f"{problem} (strict=True; strict=False flags and skips it)")
         self._last_flags = flags_out[:, -1].copy()
-        self._flag_one = None
 
 
 #: ``flags_out`` of :meth:`CompiledEstimator.run_into` before the kernel writes a sample: no

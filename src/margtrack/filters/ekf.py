@@ -222,7 +222,6 @@ class MarinsEkf(CompiledEstimator[MarinsEkfParams]):
         ):
             raise ValueError("bias_states cannot change while running; reset() first")
         CompiledEstimator.params.fset(self, value)  # type: ignore[attr-defined]
-        self._update_one = self.kernel.update_one
         self._buffers = None
 
     def _coefficients(self) -> Array:

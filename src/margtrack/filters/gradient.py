@@ -225,6 +225,11 @@ class Gradient(LiveSensors, CompiledEstimator[GradientParams]):
         coef[kernel.C_UP : kernel.C_UP + 3] = frames.up(p.frame)
         return coef
 
+    def _has_bits(self, has: int) -> int:
+        """A given field dropped with ``use_mag=False`` (then the screening does not judge
+        it and a start levels on gravity alone)."""
+        return has if self._params.use_mag else has & ~1
+
     def _run_arrays(self, *args: Any, **kwargs: Any) -> Estimate:
         est = super()._run_arrays(*args, **kwargs)
         # computed on first read (``estimator.outputs``); the kernel keeps the ``ignored``

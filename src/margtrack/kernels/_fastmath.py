@@ -52,7 +52,7 @@ _TWO_OVER_PI = 0.6366197723675814
 _P1, _P2, _P3 = 1.5707963267341256, 6.077100506303966e-11, 2.0222662487959506e-21
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _horner(c, z):
     """Σ c[k] z^k for a tuple of constants c (Horner; the loop's length is a constant, so
     LLVM unrolls it and a loop over sensors around it still vectorises)."""
@@ -62,7 +62,7 @@ def _horner(c, z):
     return p
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def asin(x):
     """arcsin(x), rad, for x in [-1, 1] (nan outside, and for nan), within 2 ulp.
 
@@ -83,7 +83,7 @@ def asin(x):
     return math.copysign(r, x)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def sincos(x):
     """(sin x, cos x) for x in rad, within 2 ulp for |x| < 1.6e6 (2^20 π/2); beyond, the
     reduction loses accuracy (an angle there is a number's rounding anyway). sin(-0) is +0.
@@ -103,7 +103,7 @@ def sincos(x):
     return (sin_x if finite else math.nan), (cos_x if finite else math.nan)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def atan2(y, x):
     """The angle of (x, y) from the x axis, rad in [-π, π], as ``math.atan2`` (signed
     zeros and infinities included), within 3 ulp.

@@ -28,7 +28,7 @@ def cholesky(s, m, chol):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def add_kalman_gain_n(chol, m, n, rhs, innov, x, y, gain):
     """:func:`add_kalman_gain` with the state size ``n`` given (inlined, so a caller's
     literal ``m`` and ``n`` unroll)."""
@@ -61,7 +61,7 @@ def add_kalman_gain(chol, m, rhs, innov, x, y, gain):
     add_kalman_gain_n(chol, m, x.shape[0], rhs, innov, x, y, gain)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def sym3_adjugate(a00, a01, a02, a11, a12, a22):
     """Adjugate and determinant of the symmetric 3x3 matrix with upper triangle a00 ... a22:
     (c00, c01, c02, c11, c12, c22, det), the adjugate's upper triangle; the inverse is the

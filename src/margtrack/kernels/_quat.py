@@ -12,7 +12,7 @@ from margtrack.kernels._fastmath import sincos
 from margtrack.kernels.jit import njit
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def mul(aw, ax, ay, az, bw, bx, by, bz):
     """Hamilton product a ⊗ b."""
     return (
@@ -23,7 +23,7 @@ def mul(aw, ax, ay, az, bw, bx, by, bz):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def exp_half(wx, wy, wz, dt):
     """exp(ω dt / 2): the rotation by the rotation vector ω·dt (rad)."""
     angle = math.sqrt(wx * wx + wy * wy + wz * wz) * dt
@@ -37,20 +37,20 @@ def exp_half(wx, wy, wz, dt):
     return cos_half, wx * scale, wy * scale, wz * scale
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def normalized(w, x, y, z):
     """q / |q| (the caller guarantees a non-zero norm)."""
     n = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
     return w * n, x * n, y * n, z * n
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def cross(ax, ay, az, bx, by, bz):
     """a × b."""
     return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def from_matrix(r11, r12, r13, r21, r22, r23, r31, r32, r33):
     """Unit quaternion (w >= 0) of a rotation matrix by the largest of 004's four branches."""
     trace = r11 + r22 + r33

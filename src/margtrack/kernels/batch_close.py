@@ -59,13 +59,13 @@ def close_sensors(q, flags, stale, held, q_last, processed, flagged, bad, data_f
         flagged[s] += counted
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _finite(q, s, i):
     return (math.isfinite(q[s, i, 0]) and math.isfinite(q[s, i, 1])
             and math.isfinite(q[s, i, 2]) and math.isfinite(q[s, i, 3]))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _all_finite(q, s):
     for i in range(q.shape[1]):
         if not _finite(q, s, i):
@@ -73,7 +73,7 @@ def _all_finite(q, s):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _repair(q, flags, q_last, s, init_flag):
     """Non-finite samples of row s filled forward from the last finite orientation."""
     w, x, y, z = q_last[s, 0], q_last[s, 1], q_last[s, 2], q_last[s, 3]
@@ -87,7 +87,7 @@ def _repair(q, flags, q_last, s, init_flag):
         flags[s, i] |= init_flag
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _hold(q, stale, q_last, s):
     """Stale samples of row s filled forward from the latest sample not stale."""
     w, x, y, z = q_last[s, 0], q_last[s, 1], q_last[s, 2], q_last[s, 3]

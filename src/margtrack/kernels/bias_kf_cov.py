@@ -56,14 +56,14 @@ F_DX = F_WD + 28  # 7: the state correction K ν
 N_SCRATCH = F_DX + 7
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _component(k, c0, c1, c2, c3):
     """Component k of the 4-vector (c0, c1, c2, c3) (k a loop index over 0-3: unrolled,
     the selection folds away)."""
     return c0 if k == 0 else (c1 if k == 1 else (c2 if k == 2 else c3))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _half_angle(angle2):
     """``(cos(|Θ|/2), sin(|Θ|/2)/|Θ|)`` of ``|Θ|² = angle2`` rad² (003 eq. 27).
 
@@ -82,7 +82,7 @@ def _half_angle(angle2):
     return math.cos(0.5 * angle), math.sin(0.5 * angle) / angle
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def predict(row, p0, s0, h, qw, qx, qy, qz, tx, ty, tz, xi0, xi1, xi2, walk0, walk1, walk2):
     """Predict ``q`` and ``P`` over one period (003 eqs. 25-31, 47-48); returns ``q⁻``.
 
@@ -168,7 +168,7 @@ def predict(row, p0, s0, h, qw, qx, qy, qz, tx, ty, tz, xi0, xi1, xi2, walk0, wa
     return qw, qx, qy, qz
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _quadratic(p00, p01, p02, p03, p11, p12, p13, p22, p23, p33, a0, a1, a2, a3):
     """``aᵀ P a`` of a symmetric 4 x 4 ``P`` from its upper triangle."""
     return (p00 * a0 * a0 + p11 * a1 * a1 + p22 * a2 * a2 + p33 * a3 * a3
@@ -176,7 +176,7 @@ def _quadratic(p00, p01, p02, p03, p11, p12, p13, p22, p23, p33, a0, a1, a2, a3)
                      + p23 * a2 * a3))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def tilt_variance(row, p0, qw, qx, qy, qz, vw, vx, vy, vz):
     """``½ (tr P_θ - ẑᵀ P_θ ẑ)``, the state's tilt variance per axis normal to ``ẑ``, rad².
 
@@ -192,7 +192,7 @@ def tilt_variance(row, p0, qw, qx, qy, qz, vw, vx, vy, vz):
     return 2.0 * (p00 + p11 + p22 + p33 - qpq - vpv)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def body_direction(qw, qx, qy, qz, ax, ay, az):
     """``Q̃ a = q ⊗ (0, a)``: the quaternion direction of body axis ``a`` (003 eq. 24)."""
     return (
@@ -203,7 +203,7 @@ def body_direction(qw, qx, qy, qz, ax, ay, az):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def tilt_d2(row, p0, qw, qx, qy, qz, mw, mx, my, mz, zx, zy, zz, var_g):
     """Squared normalised tilt innovation (2 dof) of the measurement ``m`` against ``q⁻``.
 
@@ -221,7 +221,7 @@ def tilt_d2(row, p0, qw, qx, qy, qz, mw, mx, my, mz, zx, zy, zz, var_g):
     return normal2 / (tilt_variance(row, p0, qw, qx, qy, qz, vw, vx, vy, vz) + var_g)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def decoupled_noise(row, v0, qw, qx, qy, qz, vw, vx, vy, vz, var_g, var_h):
     """``V`` (4, 4) row-major at ``row[v0:]`` of the decoupled measurement (eq. 46).
 
@@ -244,7 +244,7 @@ def decoupled_noise(row, v0, qw, qx, qy, qz, vw, vx, vy, vz, var_g, var_h):
             row[v0 + 4 * j + i] = value
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def triad_noise(row, v0, qw, qx, qy, qz, zx, zy, zz, nx, ny, nz, var_g, var_n):
     """``V`` (4, 4) row-major at ``row[v0:]`` of the TRIAD quaternion measurement (eq. 46).
 
@@ -278,7 +278,7 @@ def triad_noise(row, v0, qw, qx, qy, qz, zx, zy, zz, nx, ny, nz, var_g, var_n):
             row[v0 + 4 * j + i] = value
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def kalman_update(row, p0, s0, v0, n0, n1, n2, n3):
     """Update with ``H = [I₄ 0]`` (003 eqs. 49-51): ``P`` in place, ``K ν`` at ``F_DX``.
 

@@ -48,7 +48,7 @@ __all__ = [
     "fill_triad_cov",
 ]
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _mat(vec, offset, rows, cols):
     """The (rows, cols) row-major matrix at ``vec[offset:]``: a view, built in place (a
     ``reshape`` costs a helper call, about ten times the arithmetic it would serve)."""
@@ -136,7 +136,7 @@ def fill_triad_cov(zx, zy, zz, nx, ny, nz, var_g, var_n, out):
             out[i, j] = v + (var_g if i == j else 0.0)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def triad_at(ax, ay, az, mx, my, mz, ux, uy, uz, nx, ny, nz):
     """TRIAD (003 eqs. 10-13) as a quaternion, with the unit body vectors it used.
 
@@ -160,7 +160,7 @@ def _triad(ax, ay, az, mx, my, mz, up, north):
     return triad_at(ax, ay, az, mx, my, mz, up[0], up[1], up[2], north[0], north[1], north[2])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _up_in_body(w, x, y, z, ux, uy, uz):
     """``R(q)ᵀ u``: the earth vector ``u`` in body coordinates (``q`` body to earth)."""
     return (
@@ -173,7 +173,7 @@ def _up_in_body(w, x, y, z, ux, uy, uz):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _tilt_rotation(ax, ay, az, zx, zy, zz, fx, fy, fz):
     """Shortest rotation ``r`` taking the unit ``â`` to the unit ``ẑ`` (body frame), [w, x, y, z].
 
@@ -187,7 +187,7 @@ def _tilt_rotation(ax, ay, az, zx, zy, zz, fx, fy, fz):
     return 0.0, fx, fy, fz
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _decoupled(qw, qx, qy, qz, ax, ay, az, nx, ny, nz, zx, zy, zz, ref, r0):
     """Tilt from the accelerometer, heading from the field levelled by the predicted tilt.
 
@@ -209,7 +209,7 @@ def _decoupled(qw, qx, qy, qz, ax, ay, az, nx, ny, nz, zx, zy, zz, ref, r0):
     return OK, w, x, y, z, c2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _levelled_heading(qw, qx, qy, qz, nx, ny, nz, zx, zy, zz, ref, r0):
     """``TRIAD(ẑ, n̂)``: the predicted tilt with the heading of the unit field ``n̂``.
 
@@ -261,7 +261,7 @@ def fill_decoupled_cov(zx, zy, zz, var_g, var_h, out):
             out[i, j] = (var_h - var_g) * z[i] * z[j] + (var_g if i == j else 0.0)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _joseph(p, zmat, zh, kv, gain, n, m):
     """``P = Z - Z Hᵀ Kᵀ + K V Kᵀ`` (003 eq. 51, Joseph form) from Z = (I - K H) P, Z Hᵀ
     (n, m) and K V (n, m), written to the upper triangle and mirrored: exactly symmetric."""
@@ -351,7 +351,7 @@ def _fill_direction(qt, ax, ay, az, hq, row):
         hq[row, k] = qt[k, 0] * ax + qt[k, 1] * ay + qt[k, 2] * az
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _gate_weight(ratio, exponent):
     """``ratio ** exponent``, as ``ratio √ratio`` for the default exponent 1.5 (a fifth of
     ``pow``'s time; equal to its last bit or two)."""
@@ -360,7 +360,7 @@ def _gate_weight(ratio, exponent):
     return ratio**exponent
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _acc_variance(white_g, corr_a, acc_norm_corr_s, na, g_abs):
     """``σ_G²`` of the unit gravity direction (eqs. 41-43, ``acc_norm_correlation_s``).
 
@@ -373,7 +373,7 @@ def _acc_variance(white_g, corr_a, acc_norm_corr_s, na, g_abs):
     return var_g
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _mag_variance(white_n, h, nm, sin_dip, ref_norm, ref_sin_dip, norm_corr_s, dip_corr_s):
     """``σ_N²`` of the unit field direction (eq. 44 and the disturbance terms).
 

@@ -234,13 +234,13 @@ def _dip_bounds(row, coef):
     row[DIP_REF + 3] = math.sin(dip + tol) if dip + tol < 0.5 * math.pi else math.inf
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _bias_sd(row):
     for k in range(3):
         row[BIAS_SD + k] = math.sqrt(max(row[COV + 8 * (4 + k)], 0.0))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def code_flags(code, disturbed):
     """The flag bits of a sample's code and disturbance (the screening sets the rest)."""
     f = 0

@@ -24,7 +24,7 @@ from margtrack.kernels._quat import cross, mul
 from margtrack.kernels.jit import njit
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _rotate(w, x, y, z, v0, v1, v2):
     """``q ⊗ v ⊗ q*`` as ``v + w t + u × t`` with ``t = 2 u × v`` (quaternion.rotate)."""
     c0, c1, c2 = cross(x, y, z, v0, v1, v2)

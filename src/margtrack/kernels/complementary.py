@@ -20,7 +20,8 @@ scales by the largest component when ``|q|²`` overflows (a rate beyond ~1e150 r
 keeps the previous orientation when the step itself is not finite.
 
 On ``kernels/contract.py``: :func:`_start`, :func:`_step`, :func:`_hold` over one sensor's
-row and the four entry points ``run``, ``update``, ``update_one``, ``start``.
+row, their strided forms for the lockstep blocks, and the entry points ``run``, ``lanes``,
+``start`` that ``contract.entry_points`` generates from them.
 
 Row layout after the contract's slots (offsets ``B_*``):
 
@@ -54,11 +55,10 @@ from __future__ import annotations
 
 import math
 
-from margtrack.kernels import contract, contract_lanes, rest_null
+from margtrack.kernels import contract, rest_null
 from margtrack.kernels._quat import cross, mul
 from margtrack.kernels.complementary_geometry import cofactors, set_heading, unit_or_previous
-from margtrack.kernels.contract import N_SCOEF
-from margtrack.kernels.jit import njit, to_fixed_tuple
+from margtrack.kernels.jit import njit
 from margtrack.kernels.screen import ACC_IGNORED, MAG_IGNORED
 from margtrack.kernels.triad import PARALLEL_SINE, rotate
 
@@ -114,7 +114,7 @@ X_NULL = 6  # 3, with a gyroscope only
 N_X = X_NULL + 3
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _measure_reference(st, o, lanes, coef, ax, ay, az, bx, by, bz):
     """Measure the dip at a usable pair (both non-zero, not parallel) and set the sensor's
     field reference from it (deg and back, as ``frames.mag_reference``); no-op otherwise.
@@ -146,14 +146,14 @@ def _measure_reference(st, o, lanes, coef, ax, ay, az, bx, by, bz):
     st[o + B_HAS_REF * lanes] = 1.0 if usable else 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _start(row, coef, first, qw, qx, qy, qz):
     """(Re)start at q: fresh orientation and correction, the heading awaited from the
     field; a restart (not ``first``) keeps dip and null and raises the gain."""
     _start_at(row, 0, 1, coef, first, qw, qx, qy, qz)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
     """:func:`_start` on the row at ``st[o + j * lanes]`` (``contract_lanes``)."""
     i_q, i_step = o + B_Q * lanes, o + B_STEP * lanes
@@ -173,14 +173,14 @@ def _start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
         rest_null.fresh_one(st, o + B_NULL * lanes, lanes)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
     """One screened sample of 000's Fig. 5 (module docstring); returns the flag bits."""
     return _step_at(row, 0, 1, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, 0,
                     x_out, 0, 1, False)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     """Whether a sample takes one of :func:`_step_at`'s rare branches (the start's turn onto
     explicit references, measuring the field reference, setting the heading): those run
@@ -194,7 +194,7 @@ def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     return st[o + B_AWAIT * lanes] != 0.0 and has_mag and has_ref
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, qa, qo, xa,
              xo, outs, steady):
     """:func:`_step` on the row at ``st[o + j * lanes]``, writing q to ``qa[qo + k * outs]``
@@ -326,14 +326,14 @@ def _step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag
     return 0  # ZERO_MAG: the screening's MAG_IGNORED or MAG_DISTURBED says why
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _hold(row, coef, x_out):
     """Outputs of a held sample (a sensor waiting for a usable sample): the held correction
     (none before the first start), no new one. The sample counts in the schedule."""
     _hold_at(row, 0, 1, coef, x_out, 0, 1)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _hold_at(st, o, lanes, coef, xa, xo, outs):
     """:func:`_hold` on the row at ``st[o + j * lanes]``, outputs at ``xa[xo + k * outs]``."""
     st[o + B_CYCLE * lanes] += 1.0
@@ -350,75 +350,4 @@ def _hold_at(st, o, lanes, coef, xa, xo, outs):
             xa[xo + (X_NULL + k) * outs] = st[i_null] if started else 0.0
 
 
-@njit(cache=True, nogil=True, _nrt=False)
-def series(rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples on the shared clock's values (``contract.series``)."""
-    contract.series(_start, _step, _hold, rows, coefs, dts, ks, tflags, gyr, acc, mag,
-                    has, q_out, x_out, flags_out)
-
-
-@njit(cache=True, nogil=True)
-def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples (``contract.run_series`` with :func:`series`)."""
-    contract.run_series(series, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
-                        flags_out)
-
-
-@njit(cache=True, error_model="numpy", _nrt=False)
-def lanes_block(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
-                flags_out, frame_major, s_in):
-    """One block of sensors in lockstep, vectorised across them (``contract_lanes.block``)."""
-    # (plain global names: numba sees them as the constants to_fixed_tuple needs)
-    scoef, coef = to_fixed_tuple(coefs, N_SCOEF), to_fixed_tuple(coefs[N_SCOEF:], N_COEF)
-    contract_lanes.block(_start_at, _step_at, _hold_at, _rare_at, N_ROW, N_X, st, rows, s0, scoef,
-                         coef, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out,
-                         frame_major, s_in)
-
-
-#: slots per lane of :func:`lanes_block`'s buffer
-LANES_WIDTH = N_ROW + contract_lanes.N_B + N_X
-
-
-@njit(cache=True, nogil=True)
-def run_lanes(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """:func:`run` by blocks of sensors in lockstep (``contract_lanes.run_blocks``); the same
-    results."""
-    contract_lanes.run_blocks(lanes_block, LANES_WIDTH, rows, clock, coefs, t, gyr, acc, mag, has,
-                              q_out, x_out, flags_out, False, 0)
-
-
-@njit(cache=True, nogil=True)
-def run_lanes_frames(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out, s_in):
-    """:func:`run_lanes` on frame-major inputs (N, S', 3), the rows' sensors from ``s_in``."""
-    contract_lanes.run_blocks(lanes_block, LANES_WIDTH, rows, clock, coefs, t, gyr, acc, mag, has,
-                              q_out, x_out, flags_out, True, s_in)
-
-
-@njit(cache=True)
-def sample(row, coef, scoef, clk, imu, has, q_out, x_out):
-    """One screened sample of one sensor (``contract.sample``), compiled once for
-    :func:`update` and :func:`update_one`."""
-    return contract.sample(_start, _step, _hold, row, coef, scoef, clk, imu, has, q_out, x_out)
-
-
-@njit(cache=True)
-def update(rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """One sample of S sensors (``contract.update_samples``)."""
-    contract.update_samples(sample, rows, clock, coefs, dt, gyr, acc, mag, has,
-                            q_out, x_out, flags_out)
-
-
-@njit(cache=True)
-def update_one(rows, clock, coefs, dt, g, a, m, has, out):
-    """One sample of one sensor (``contract.update_one``); returns the flags."""
-    return contract.update_one(sample, rows, clock, coefs, dt, g, a, m, has, out)
-
-
-@njit(cache=True)
-def start(rows, coefs, quat0):
-    """Start S sensors at a given quat0 (S, 4) (``contract.start_rows``): the orientation is
-    given whole, so no heading is awaited and no turn applies."""
-    contract.start_rows(_start, rows, coefs, quat0)
-    for s in range(rows.shape[0]):
-        rows[s, B_AWAIT] = 0.0
-        rows[s, B_TURN] = 0.0
+run, lanes, start = contract.entry_points(__name__)

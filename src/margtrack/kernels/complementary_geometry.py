@@ -20,7 +20,7 @@ from margtrack.kernels.triad import rotate
 HEADING_MIN_SINE = 0.08715574274765817
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def unit_or_previous(w, x, y, z, pw, px, py, pz):
     """q / |q| (eq. 27's normalisation), safe for any finite or non-finite q.
 

@@ -1,25 +1,23 @@
 """The compiled skeleton every method's kernel runs on: clock, screening, (re)starts, holds.
 
-A method provides three inline functions over one sensor's flat state row ``row``
-(``N_CONTRACT`` contract slots first, the method's own after them):
+A method provides three ``@njit`` functions over one sensor's flat state row ``row``
+(``N_CONTRACT`` contract slots first, the method's own after them), named ``_start``,
+``_step``, ``_hold`` in its kernel module:
 
-- ``start(row, coef, first, qw, qx, qy, qz)``: (re)start at the orientation q (body to
+- ``_start(row, coef, first, qw, qx, qy, qz)``: (re)start at the orientation q (body to
   earth, output frame); ``first`` is True the very first time (then the method also sets
   what it knows of the sensor, like a bias variance); a restart after a gap keeps that;
-- ``step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out)``:
+- ``_step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out)``:
   one screened sample (an all-zero acc or mag: no measurement; dt 0: nothing to
-  integrate); writes the orientation to ``q_out`` (4,) and its extra outputs to
-  ``x_out`` (K,); returns its own flag bits (REST, MAG_DISTURBED, ACC_IGNORED ...);
-- ``hold(row, coef, x_out)``: the extra outputs of the current state, for held samples.
+  integrate); writes the orientation to ``q_out`` (4,) and what it keeps per sample to
+  ``x_out`` (``N_X``,); returns its own flag bits (REST, MAG_DISTURBED, ACC_IGNORED ...);
+- ``_hold(row, coef, x_out)``: ``x_out`` of the current state, for held samples.
 
-and wraps them in ``@njit`` functions of its own: ``series`` (:func:`series` with its
-functions as the first arguments: numba compiles, inlines and caches one specialisation
-per method, without reference counting) and ``run`` (:func:`run_series` with its
-``series``; both ``nogil``, so threads can share the sensors), ``sample`` (:func:`sample`
-with its functions, compiled once), ``update`` and ``update_one`` (:func:`update_samples`,
-:func:`update_one` with its ``sample``: its step is compiled once for both, not inlined
-into each) and ``start`` (:func:`start_rows`). All go through the same :func:`_sample`,
-so N updates equal one run.
+:func:`entry_points` generates the method's compiled entry points from them: ``run``
+(S sensors' N samples; ``update`` is ``run`` over one sample, so N updates equal one run),
+``lanes`` (the same in lockstep blocks, for a method that also writes its functions in
+strided form) and ``start``. Every sample goes through :func:`_sample`. The shared clock
+is read once per call, before the sensors (:func:`clock_series`).
 
 ``contract_lanes`` runs the same samples for blocks of sensors in lockstep, vectorised
 across them, with the same results, for a method that also provides its functions in
@@ -33,11 +31,12 @@ Screening coefficients ``scoef`` are ``screen``'s plus ``C_NED`` and ``C_MAG_REQ
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
 
 from margtrack.kernels import screen
-from margtrack.kernels.jit import njit
+from margtrack.kernels.jit import force_vector_width, njit, to_fixed_tuple
 from margtrack.kernels.triad import level, reference_triad, triad_unit, unit_pair
 
 K_READY = 0
@@ -51,7 +50,11 @@ C_NED = screen.N_COEF  # 1: the output frame is NED (else ENU)
 C_MAG_REQUIRED = screen.N_COEF + 1  # 1: a start needs a usable field (else acc suffices)
 N_SCOEF = screen.N_COEF + 2
 
-INITIALISING = 256  # margtrack.estimator.flags.Flag.INITIALISING
+INITIALISING = 256
+
+#: lanes per vector the lockstep blocks are compiled for (``jit.force_vector_width``): 8
+#: float64 in AVX-512; on a machine with narrower vectors LLVM splits them
+VECTOR_WIDTH = 8  # margtrack.estimator.flags.Flag.INITIALISING
 
 
 @njit(cache=True)
@@ -85,7 +88,6 @@ def _sample(start, step, hold, row, coef, scoef, dt, k_ref, tflags, g0, g1, g2, 
     """One sensor, one sample: screen, (re)start when due, step or hold; returns flags.
 
     ``k_ref`` is ``screen.ref_gain(dt)``, shared by the sensors of a sample."""
-    # (screen_at, not its wrapper screen_one_k: each level of inlining copies the body)
     f, g0, g1, g2, a0, a1, a2, m0, m1, m2 = screen.screen_at(
         scoef, row, K_SCREEN, 1, dt, k_ref, tflags, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag,
         has_gyr,
@@ -109,8 +111,8 @@ def _sample(start, step, hold, row, coef, scoef, dt, k_ref, tflags, g0, g1, g2, 
     return f
 
 
-@njit(cache=True, inline="always")
-def _clock_series(clock, max_gap, t):
+@njit(cache=True)
+def clock_series(clock, max_gap, t):
     """The shared clock over timestamps ``t`` (N,): intervals (N,) s, clock flags (N,) and
     the screening's reference gains (N,) (``screen.ref_gain``, once per sample).
 
@@ -172,67 +174,6 @@ def series(start, step, hold, rows, coefs, dts, ks, tflags, gyr, acc, mag, has, 
 
 
 @njit(cache=True, inline="always")
-def run_series(series_kernel, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
-               flags_out):
-    """S sensors' N samples with common timestamps ``t`` (N,) s; ``clock`` (1,) in/out.
-
-    The clock is shared, so it is read once (:func:`_clock_series`); then
-    ``series_kernel`` (a method's ``series``: :func:`series` with its functions) runs the
-    sensors; the other arguments as :func:`series` takes them.
-    """
-    dts, ks, tflags = _clock_series(clock, coefs[screen.C_MAX_GAP], t)
-    series_kernel(rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out)
-
-
-@njit(cache=True, inline="always")
-def _clock_step(clock, scoef, dt_given):
-    """Interval and clock flags of a sample ``dt_given`` s after the last (any, if first)."""
-    t = 0.0 if not math.isfinite(clock[0]) else clock[0] + dt_given
-    return screen.time_one(clock, scoef[screen.C_MAX_GAP], t)
-
-
-@njit(cache=True, inline="always")
-def sample(start, step, hold, row, coef, scoef, clk, imu, has, q_out, x_out):
-    """:func:`_sample` with the clock's values ``clk`` (dt, k_ref, tflags) and the sample
-    ``imu`` (g0, g1, g2, a0, a1, a2, m0, m1, m2) packed, and the ``has`` bits: the body of
-    a method's compiled ``sample``, the one function its ``update`` and ``update_one``
-    call (so the method's step compiles once for both)."""
-    dt, k_ref, tflags = clk
-    g0, g1, g2, a0, a1, a2, m0, m1, m2 = imu
-    return _sample(start, step, hold, row, coef, scoef, dt, k_ref, tflags, g0, g1, g2, a0, a1,
-                   a2, m0, m1, m2, (has & 1) != 0, (has & 2) != 0, q_out, x_out)
-
-
-@njit(cache=True, inline="always")
-def update_samples(sample, rows, clock, coefs, dt_given, gyr, acc, mag, has, q_out, x_out,
-                   flags_out):
-    """One sample of S sensors, ``dt_given`` s after the last: gyr, acc, mag (S, 3);
-    q_out (S, 4), x_out (S, K), flags_out (S,) filled; ``sample`` the method's compiled
-    one (:func:`sample`)."""
-    scoef, coef = coefs[:N_SCOEF], coefs[N_SCOEF:]
-    dt, tflags = _clock_step(clock, scoef, dt_given)
-    clk = (dt, screen.ref_gain(dt), tflags)
-    for s in range(rows.shape[0]):
-        flags_out[s] = sample(
-            rows[s], coef, scoef, clk, (gyr[s, 0], gyr[s, 1], gyr[s, 2], acc[s, 0], acc[s, 1],
-                                        acc[s, 2], mag[s, 0], mag[s, 1], mag[s, 2]),
-            has, q_out[s], x_out[s],
-        )
-
-
-@njit(cache=True, inline="always")
-def update_one(sample, rows, clock, coefs, dt_given, g, a, m, has, out):
-    """One sample of one sensor: g, a, m (3,); out (4 + K,) gets q then the extra outputs.
-
-    Returns the flags. The lean path of ``update`` (few arguments, nothing allocated).
-    """
-    scoef, coef = coefs[:N_SCOEF], coefs[N_SCOEF:]
-    dt, tflags = _clock_step(clock, scoef, dt_given)
-    return sample(rows[0], coef, scoef, (dt, screen.ref_gain(dt), tflags),
-                  (g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2]), has, out[:4], out[4:])
-
-
-@njit(cache=True, inline="always")
 def start_rows(start, rows, coefs, quat0):
     """Start every sensor at a given orientation quat0 (S, 4) (``reset(q0)``)."""
     coef = coefs[N_SCOEF:]
@@ -243,3 +184,83 @@ def start_rows(start, rows, coefs, quat0):
         row[K_READY] = 1.0
         for k in range(4):
             row[K_Q + k] = quat0[s, k]
+
+
+# -- the entry points generated for a method (entry_points) ---------------------------------
+# Templates: plain functions whose free names (_start, _step, _hold, _start_at, _step_at,
+# _hold_at, _rare_at, N_ROW, N_X, N_COEF) are a method's, bound by entry_points.
+
+
+def _run_template(rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """S sensors' N samples on the shared clock's values (:func:`clock_series`): rows
+    (S, N_ROW) in/out, gyr, acc, mag (S, N, 3), q_out (S, N, 4), x_out (S, N, N_X), flags_out
+    (S, N) filled (:func:`series`)."""
+    series(_start, _step, _hold, rows, coefs, dts, ks, tflags, gyr, acc, mag,  # noqa: F821
+           has, q_out, x_out, flags_out)
+
+
+def _lanes_template(st, rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
+                    flags_out, frame_major, s_in):
+    """:func:`_run_template` by blocks of sensors in lockstep (``contract_lanes.block``),
+    the same results; ``st`` ((N_ROW + contract_lanes.N_B + N_X) * LANES,) scratch; the
+    inputs (S, N, 3), or with ``frame_major`` (N, S', 3), sensor s at ``s_in + s``."""
+    # coefficients as tuples of constant length: values, not memory the loop must check
+    scoef = to_fixed_tuple(coefs, N_SCOEF)
+    coef = to_fixed_tuple(coefs[N_SCOEF:], N_COEF)  # noqa: F821
+    for s0 in range(0, rows.shape[0], contract_lanes.LANES):  # noqa: F821
+        contract_lanes.block(  # noqa: F821
+            _start_at, _step_at, _hold_at, _rare_at, N_ROW, N_X,  # noqa: F821
+            st, rows, s0, scoef, coef, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
+            flags_out, frame_major, s_in)
+
+
+def _start_template(rows, coefs, quat0):
+    """Start S sensors at quat0 (S, 4) (:func:`start_rows`)."""
+    start_rows(_start, rows, coefs, quat0)  # noqa: F821
+
+
+def _generated(template, name, module, options):
+    """``template`` compiled as the function ``name`` of ``module``, its free names bound to
+    the module's: numba caches it beside the module's own kernels (an edit of the module
+    compiles it again) under its own name."""
+    from margtrack.kernels import contract_lanes
+
+    names = dict(globals(), contract_lanes=contract_lanes)
+    names.update({k: v for k, v in vars(module).items() if not k.startswith("__")})
+    names["__name__"] = module.__name__
+    code = template.__code__.replace(co_filename=module.__file__, co_name=name,
+                                     co_qualname=name)
+    func = types.FunctionType(code, names, name)
+    func.__module__ = module.__name__
+    func.__qualname__ = name
+    func.__doc__ = template.__doc__
+    return njit(cache=True, **options)(func)
+
+
+def entry_points(module_name):
+    """The compiled entry points of the method whose kernel module is ``module_name``:
+    ``(run, lanes, start)``, written by the method as
+    ``run, lanes, start = contract.entry_points(__name__)`` below its functions.
+
+    The module provides ``_start``, ``_step``, ``_hold`` over one row (this module's
+    docstring), ``N_ROW`` and ``N_X`` (values per sample ``run`` writes); ``lanes`` (None
+    otherwise) when it also provides them strided (``_start_at``, ``_step_at``,
+    ``_hold_at``, ``_rare_at``: ``contract_lanes``) and ``N_COEF``. ``run`` and ``lanes`` run
+    on a clock already read (:func:`clock_series`), release the GIL (threads share the
+    sensors) and count no references (``_nrt=False``: a dozen atomic calls a sample
+    otherwise); ``lanes`` also compiles float division without its zero check
+    (``error_model="numpy"``, a branch the vectoriser cannot take: the kernels guard every
+    division) and with LLVM's vectoriser forced to :data:`VECTOR_WIDTH` lanes.
+    """
+    import sys
+
+    module = sys.modules[module_name]
+    run = _generated(_run_template, "run", module, {"nogil": True, "_nrt": False})
+    start = _generated(_start_template, "start", module, {})
+    lanes = None
+    if hasattr(module, "_step_at"):
+        lanes = force_vector_width(
+            _generated(_lanes_template, "lanes", module,
+                       {"nogil": True, "_nrt": False, "error_model": "numpy"}),
+            VECTOR_WIDTH)
+    return run, lanes, start

@@ -67,7 +67,7 @@ def _screen_lane(rare_at, st, o, n_row, coef, scoef, dt, k_ref, tflags, has_mag,
     its step needs the scalar pass (it (re)starts, or takes a rare branch)."""
     lanes = LANES
     i_in = o + (n_row + B_GYR) * lanes
-    f, g0, g1, g2, a0, a1, a2, m0, m1, m2 = screen.screen_at(
+    f, g0, g1, g2, a0, a1, a2, m0, m1, m2 = screen.screen_at_inline(
         scoef, st, o + K_SCREEN * lanes, lanes, dt, k_ref, tflags,
         st[i_in], st[i_in + lanes], st[i_in + 2 * lanes],
         st[i_in + 3 * lanes], st[i_in + 4 * lanes], st[i_in + 5 * lanes],

@@ -26,20 +26,20 @@ from margtrack.kernels.triad import FASTMATH, OK, ZERO_ACC, level, unit_pair
 MAX_SWEEPS = 12
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def field_from_dip(sin_dip, cos_dip, ux, uy, uz, nx, ny, nz):
     """Unit earth field reference ``cos(dip)·north - sin(dip)·up`` (dip positive down)."""
     return cos_dip * nx - sin_dip * ux, cos_dip * ny - sin_dip * uy, cos_dip * nz - sin_dip * uz
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def measured_dip(ax, ay, az, mx, my, mz):
     """Dip (rad, positive down) of unit field m̂ seen with unit up â: ``asin(-â·m̂)``."""
     d = -(ax * mx + ay * my + az * mz)
     return math.asin(min(1.0, max(-1.0, d)))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def profile(a1, r1x, r1y, r1z, b1x, b1y, b1z, a2, r2x, r2y, r2z, b2x, b2y, b2z):
     """Attitude profile of two weighted pairs: the 10 entries of K, upper triangle.
 
@@ -122,7 +122,7 @@ def largest_eigenvector(k, v):
     return w / n, x / n, y / n, z / n, k[best, best]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def fill_symmetric(k, e):
     """Write the 10 upper-triangle entries ``e`` (as from :func:`profile`) into k (4, 4)."""
     k00, k01, k02, k03, k11, k12, k13, k22, k23, k33 = e

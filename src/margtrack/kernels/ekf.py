@@ -76,9 +76,10 @@ Screened samples (``margtrack.estimator.screening``) and degenerate pairs:
   update that would leave a zero or non-finite quaternion is undone (``NOT_PD``).
 
 On ``kernels/contract.py``: :func:`_start`, :func:`_step`, :func:`_hold` over one sensor's
-row and the entry points ``run``, ``sample``, ``update``, ``update_one``, ``start``. The
-step is written once for a state of ``n`` = 7 or 10 numbers (:mod:`margtrack.kernels.ekf_step`:
-``start_n``, ``step_n``, ``hold_n``, inlined with ``n`` constant; the layouts below are
+row and the entry points ``run``, ``start`` that ``contract.entry_points`` generates from
+them. The step is written once for a state of ``n`` = 7 or 10 numbers
+(:mod:`margtrack.kernels.ekf_step`: ``start_n``, ``step_n``, ``hold_n``, compiled with
+``n`` constant; the layouts below are
 defined there and re-exported here). Row layout after the
 contract's slots (offsets ``E_*``, the same for both sizes up to ``E_X``):
 
@@ -234,70 +235,31 @@ __all__ = [
     "out_offsets",
     "process_noise",
     "run",
-    "sample",
-    "series",
     "start",
     "start_n",
     "step_n",
     "transition",
-    "update",
-    "update_one",
     "vector_measurement",
 ]
 
 
 # -- the 7-state filter (001) ------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _start(row, coef, first, qw, qx, qy, qz):
     start_n(row, coef, first, qw, qx, qy, qz, N)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _step(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
     """:func:`step_n` for the 7-state filter (compiled once for n = 7 and called)."""
     return step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out, N)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _hold(row, coef, x_out):
     hold_n(row, coef, x_out, N)
 
 
-@njit(cache=True, nogil=True, _nrt=False)
-def series(rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples on the shared clock's values (``contract.series``)."""
-    contract.series(_start, _step, _hold, rows, coefs, dts, ks, tflags, gyr, acc, mag,
-                    has, q_out, x_out, flags_out)
+N_X = N_OUT  # what ``run`` writes per sample
 
-
-@njit(cache=True, nogil=True)
-def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples (``contract.run_series`` with :func:`series`)."""
-    contract.run_series(series, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
-                        flags_out)
-
-
-@njit(cache=True)
-def sample(row, coef, scoef, clk, imu, has, q_out, x_out):
-    """One screened sample of one sensor (``contract.sample``), compiled once for
-    :func:`update` and :func:`update_one`."""
-    return contract.sample(_start, _step, _hold, row, coef, scoef, clk, imu, has, q_out, x_out)
-
-
-@njit(cache=True)
-def update(rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """One sample of S sensors (``contract.update_samples``)."""
-    contract.update_samples(sample, rows, clock, coefs, dt, gyr, acc, mag, has,
-                            q_out, x_out, flags_out)
-
-
-@njit(cache=True)
-def update_one(rows, clock, coefs, dt, g, a, m, has, out):
-    """One sample of one sensor (``contract.update_one``); returns the flags."""
-    return contract.update_one(sample, rows, clock, coefs, dt, g, a, m, has, out)
-
-
-@njit(cache=True)
-def start(rows, coefs, quat0):
-    """Start S sensors at quat0 (S, 4) (``contract.start_rows``)."""
-    contract.start_rows(_start, rows, coefs, quat0)
+run, lanes, start = contract.entry_points(__name__)

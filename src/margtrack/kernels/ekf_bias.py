@@ -39,64 +39,28 @@ X_NULL = X_CODE + 1  # 3
 X_BIAS = X_NULL + 3  # 3
 X_BIAS_SD = X_BIAS + 3  # 3
 N_OUT = X_BIAS_SD + 3
+N_X = N_OUT  # what ``run`` writes per sample
 
 __all__ = [
-    "E_BIAS", "E_BIAS_SD", "E_P", "E_X", "N_ROW", "run", "series", "start", "update", "update_one",
+    "E_BIAS", "E_BIAS_SD", "E_P", "E_X", "N_ROW", "lanes", "run", "start",
 ]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _start(row, coef, first, qw, qx, qy, qz):
     start_n(row, coef, first, qw, qx, qy, qz, N)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _step(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out):
     """:func:`margtrack.kernels.ekf.step_n` with the bias state (compiled once for n = 10
     and called)."""
     return step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_out, N)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _hold(row, coef, x_out):
     hold_n(row, coef, x_out, N)
 
 
-@njit(cache=True, nogil=True, _nrt=False)
-def series(rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples on the shared clock's values (``contract.series``)."""
-    contract.series(_start, _step, _hold, rows, coefs, dts, ks, tflags, gyr, acc, mag,
-                    has, q_out, x_out, flags_out)
-
-
-@njit(cache=True, nogil=True)
-def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples (``contract.run_series`` with :func:`series`)."""
-    contract.run_series(series, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
-                        flags_out)
-
-
-@njit(cache=True)
-def sample(row, coef, scoef, clk, imu, has, q_out, x_out):
-    """One screened sample of one sensor (``contract.sample``), compiled once for
-    :func:`update` and :func:`update_one`."""
-    return contract.sample(_start, _step, _hold, row, coef, scoef, clk, imu, has, q_out, x_out)
-
-
-@njit(cache=True)
-def update(rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """One sample of S sensors (``contract.update_samples``)."""
-    contract.update_samples(sample, rows, clock, coefs, dt, gyr, acc, mag, has,
-                            q_out, x_out, flags_out)
-
-
-@njit(cache=True)
-def update_one(rows, clock, coefs, dt, g, a, m, has, out):
-    """One sample of one sensor (``contract.update_one``); returns the flags."""
-    return contract.update_one(sample, rows, clock, coefs, dt, g, a, m, has, out)
-
-
-@njit(cache=True)
-def start(rows, coefs, quat0):
-    """Start S sensors at quat0 (S, 4) (``contract.start_rows``)."""
-    contract.start_rows(_start, rows, coefs, quat0)
+run, lanes, start = contract.entry_points(__name__)

@@ -31,7 +31,7 @@ from margtrack.kernels.jit import njit
 __all__ = ["fit"]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _residuals(gx, gy, gz, mx, my, mz, ux, uy, uz, hx, hy, hz, w, x, y, z, rho2):
     """Q at n = (w, x, y, z) and the terms its update needs (``_pair_terms`` of each pair)."""
     eg = _pair_terms(gx, gy, gz, ux, uy, uz, w, x, y, z)
@@ -41,14 +41,14 @@ def _residuals(gx, gy, gz, mx, my, mz, ux, uy, uz, hx, hy, hz, w, x, y, z, rho2)
     return q, eg, em
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _update(eg, em, rho2, w, x, y, z):
     """The Gauss-Newton update from n (001 eq. 22): (ok, n + Δ), as ``gauss_newton._step``."""
     ok, d0, d1, d2, d3 = _gauss_newton_delta(rho2, eg, em)
     return ok, w + d0, x + d1, y + d2, z + d3
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def fit(gx, gy, gz, mx, my, mz, ux, uy, uz, hx, hy, hz, w, x, y, z, rho, tolerance,
         max_iterations):
     """Gauss-Newton fit from the guess n = (w, x, y, z) (any non-zero norm).

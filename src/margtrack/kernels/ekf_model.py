@@ -53,7 +53,7 @@ __all__ = [
 ]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def exp_half(tx, ty, tz):
     """``E = exp(θ/2)`` (4-tuple) and ``D = ∂E/∂θ`` (4 x 3 tuple) for a rotation vector θ.
 
@@ -93,7 +93,7 @@ def exp_jacobian(tx, ty, tz, out):
     return e
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _g_row(l0, l1, l2, l3, d, inq):
     """One row of ``G = L(q) ∂E/∂θ / |q|`` from a row of ``L(q)`` (inq = 1/|q|)."""
     return (
@@ -103,14 +103,14 @@ def _g_row(l0, l1, l2, l3, d, inq):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _f_row(e0, e1, e2, e3, u, q0, q1, q2, q3, in2):
     """One row of ``F_qq = R(E) - u qᵀ / |q|²`` from a row of ``R(E)`` (in2 = 1/|q|²)."""
     un = u * in2
     return (e0 - un * q0, e1 - un * q1, e2 - un * q2, e3 - un * q3)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def transition_terms(w0, w1, w2, qw, qx, qy, qz, a0, a1, a2, c0, c1, c2):
     """One step of the process model (:mod:`margtrack.kernels.ekf`) and its Jacobian blocks.
 
@@ -207,7 +207,7 @@ def process_noise(g, h, tau_s, rate_var, out):
                 out[3 + r, 3 + c] += g[r, k] * vp * g[c, k]
 
 
-@njit(cache=True, fastmath=FASTMATH)
+@njit(cache=True, fastmath=FASTMATH, inline="always")
 def predict_covariance(st, p, n, a, c, g, f, vw, cpw, vp, vb):
     """``P ← F P Fᵀ + Q`` in place (module docstring), P at ``st[p:]`` (n x n, stride n).
 
@@ -258,7 +258,7 @@ def predict_covariance(st, p, n, a, c, g, f, vw, cpw, vp, vb):
         st[p + k * (n + 1)] += vb[k - 7]
 
 
-@njit(cache=True, fastmath=FASTMATH)
+@njit(cache=True, fastmath=FASTMATH, inline="always")
 def mirror(st, p, n):
     """Copy P's upper triangle to its lower one (P at ``st[p:]``, n x n)."""
     for i in range(n):
@@ -266,13 +266,13 @@ def mirror(st, p, n):
             st[p + j * n + i] = st[p + i * n + j]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _sym(st, p, n, i, j):
     """``P[i, j]`` from the upper triangle."""
     return st[p + i * n + j] if i <= j else st[p + j * n + i]
 
 
-@njit(cache=True, fastmath=FASTMATH)
+@njit(cache=True, fastmath=FASTMATH, inline="always")
 def scalar_update(st, x, p, n, ph, i0, i1, h0, h1, h2, h3, nu, r):
     """One scalar measurement ``z = hᵀ x + v``, ``Var v = r``: x, P in place (docstring).
 
@@ -324,7 +324,7 @@ def scalar_update(st, x, p, n, ph, i0, i1, h0, h1, h2, h3, nu, r):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def vector_reading(w, x, y, z, vx, vy, vz):
     """Body-frame reading ``R(q)ᵀ v / |q|²`` of a unit earth vector v (3-tuple) and its
     Jacobian ∂/∂q (3 x 4 tuple); 001 eq. 19 with the derived sign (kernel docstring).

@@ -45,7 +45,7 @@ from margtrack.kernels.jit import njit
 __all__ = ["disturbance_share", "quaternion_update", "rotation_covariance"]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def disturbance_share(norm, ref_norm, correlation_s, ih):
     """``s = 2 T d² / h``, ``d = (norm - ref) / ref``: a sample's share of the disturbance of
     a unit vector's components (dimensionless²); 0 when T is 0 (ih = 1/h)."""
@@ -55,7 +55,7 @@ def disturbance_share(norm, ref_norm, correlation_s, ih):
     return 2.0 * correlation_s * d * d * ih
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def rotation_covariance(ax, ay, az, mx, my, mz, rho, s_a, s_m):
     """``C = A⁻¹ B A⁻¹`` (module docstring) for unit â, m̂: (ok, c00, c01, c02, c11, c12,
     c22), rad², body frame; ok False when A is singular (â along m̂)."""
@@ -101,7 +101,7 @@ def rotation_covariance(ax, ay, az, mx, my, mz, rho, s_a, s_m):
     return True, c00, c01, c02, c11, c12, c22
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def quaternion_update(st, x, p, n, ph, w, qx, qy, qz, var, c00, c01, c02, c11, c12, c22):
     """The measured unit quaternion ``z = (w, qx, qy, qz)`` (H = I on the state's
     quaternion at ``st[x + 3:]``) with noise ``R = var I₄ + ¼ Ξ C Ξᵀ`` (module docstring),

@@ -94,7 +94,7 @@ X_NULL = 12  # 3
 N_OUT = 15
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def offsets(n):
     """Row offsets of a state of size n: covariance, scratch, bias of the raw rate, its sd."""
     p = E_X + n
@@ -102,7 +102,7 @@ def offsets(n):
     return p, ph, ph + n, ph + n + 3
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def out_offsets(n):
     """Offsets in ``x_out``: covariance diagonal, iterations, code, null, bias, bias sd."""
     return 3, 3 + n, 4 + n, 5 + n, 8 + n, 11 + n
@@ -113,7 +113,7 @@ def out_offsets(n):
 _BOTH = ACC_IGNORED | MAG_IGNORED
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _code_flags(code):
     if code == ZERO_ACC:
         return ACC_IGNORED
@@ -122,7 +122,7 @@ def _code_flags(code):
     return _BOTH
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _bias_outputs(row, n, nx, ny, nz):
     """The bias of the raw rate (the null plus b) and its sd into the row."""
     p, _, bias, bias_sd = offsets(n)
@@ -132,7 +132,7 @@ def _bias_outputs(row, n, nx, ny, nz):
         row[bias_sd + k] = math.sqrt(max(row[p + (n + 1) * (7 + k)], 0.0))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def start_n(row, coef, first, qw, qx, qy, qz, n):
     """(Re)start at q with zero rate and the initial covariance; the first start also
     forgets the dip, the gyro null and the bias (a restart keeps them, and b's covariance
@@ -164,7 +164,7 @@ def start_n(row, coef, first, qw, qx, qy, qz, n):
         _bias_outputs(row, n, row[k], row[k + 1], row[k + 2])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _outputs(row, x_out, iterations, code, nx, ny, nz, n):
     p, _, bias, bias_sd = offsets(n)
     o_cov, o_iter, o_code, o_null, o_bias, o_sd = out_offsets(n)
@@ -181,7 +181,7 @@ def _outputs(row, x_out, iterations, code, nx, ny, nz, n):
             x_out[o_sd + k] = row[bias_sd + k]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _constants(row, coef, h):
     """The interval's constants (``E_K``), recomputed when h changes by more than
     ``DT_REUSE_REL`` (relative) from the interval they were computed for, or the
@@ -199,12 +199,12 @@ def _constants(row, coef, h):
         row[E_GEN] = coef[C_GEN]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _k3(row, o):
     return row[E_K + o], row[E_K + o + 1], row[E_K + o + 2]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _update_vector(row, n, zv, jac, meas0, meas1, meas2, var, pw, px, py, pz):
     """The three components of a unit vector reading, linearised at the prediction
     ``q⁻ = (pw, px, py, pz)``; False at the first whose update failed."""
@@ -219,14 +219,14 @@ def _update_vector(row, n, zv, jac, meas0, meas1, meas2, var, pw, px, py, pz):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _unit_update(row, n, k, nu, var):
     """The scalar update of state component k (``h = e_k``) by innovation nu, variance var."""
     p, ph, _, _ = offsets(n)
     return scalar_update(row, E_X, p, n, ph, k, -1, 0.0, 0.0, 0.0, 0.0, nu, var)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _gyro_update(row, coef, n, rate, k, ih):
     """The gyroscope's axis k: it measures ω_k (or ω_k + b_k with the bias state), the rate
     limited to ±``MAX_RATE_RAD_S``; variance density² / h (ih = 1/h)."""
@@ -241,7 +241,7 @@ def _gyro_update(row, coef, n, rate, k, ih):
                          coef[C_GYR_VAR + k] * ih)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _field_share(row, coef, h, ih, norm):
     """The field's disturbance share against the reference norm ``E_MAG_NORM``, which then
     follows the field slowly (the screening's time constant, ``screen.REF_TAU_S``, its gain
@@ -386,7 +386,7 @@ def step_n(row, coef, h, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
     return _code_flags(flag)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def hold_n(row, coef, x_out, n):
     """Outputs of a held sample (a sensor waiting for a usable sample): the state's."""
     k = E_NULL + rest_null.RN_NULL

@@ -9,7 +9,7 @@ from margtrack.kernels.jit import njit
 __all__ = ["feed_norms"]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _median_in_place(values):
     """The median of an odd number of values, sorting them in place (insertion sort: for
     15 values per sensor, numba's ``ndarray.sort`` took 48 ms for 118,125 sensors against

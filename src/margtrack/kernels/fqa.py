@@ -18,7 +18,7 @@ from margtrack.kernels.lowpass import prefilter_sensor
 from margtrack.kernels.triad import FASTMATH, OK, ZERO_ACC, level, rotate, unit_pair
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def half_angle(c, s):
     """(cos(x/2), sin(x/2)) from (cos x, sin x), x in (-π, π], so cos(x/2) >= 0.
 
@@ -39,7 +39,7 @@ def half_angle(c, s):
     return s / (2.0 * s2), s2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def fqa_unit(ax, ay, az, mx, my, mz, epsilon, cos_half_alpha, sin_half_alpha):
     """FQA orientation in NED of a checked unit pair: (switched, w, x, y, z).
 

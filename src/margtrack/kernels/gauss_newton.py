@@ -66,7 +66,7 @@ MAX_HALVINGS = 8
 PIVOT_TOLERANCE = 1e-12
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _pair_terms(vx, vy, vz, rx, ry, rz, w, x, y, z):
     """Residual ε = r - R(n) v and p = v ⊗ n* (J's columns are -2 vec(e_k ⊗ p))."""
     p0, p1, p2, p3 = mul(0.0, vx, vy, vz, w, -x, -y, -z)
@@ -74,7 +74,7 @@ def _pair_terms(vx, vy, vz, rx, ry, rz, w, x, y, z):
     return rx - fx, ry - fy, rz - fz, p0, p1, p2, p3
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _normal_terms(weight, ex, ey, ez, p0, p1, p2, p3):
     """weight·(JᵀJ, Jᵀε) of one vector pair: 10 upper-triangle entries of JᵀJ, then Jᵀε."""
     # columns of J = -∂f/∂n (001 eq. 23): -2 vec(e_k ⊗ p) for k = w, x, y, z
@@ -100,7 +100,7 @@ def _normal_terms(weight, ex, ey, ez, p0, p1, p2, p3):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _gauss_newton_delta(rho2, eg, em):
     """The Gauss-Newton update ``Δ = -(JᵀJ)⁻¹ Jᵀε`` (001 eq. 22) from the two pairs'
     :func:`_pair_terms` ``eg``, ``em`` (ρ² the field's weight): (ok, Δw, Δx, Δy, Δz).
@@ -148,7 +148,7 @@ def _gauss_newton_delta(rho2, eg, em):
             k * (s2 + u2 * zu + v2 * zv), k * (s3 + u3 * zu + v3 * zv))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _solve_symmetric(a00, a01, a02, a03, a11, a12, a13, a22, a23, a33, b0, b1, b2, b3):
     """Solve the symmetric 4 x 4 system A x = b by LDLᵀ (no pivoting): (ok, x0..x3).
 

@@ -34,6 +34,7 @@ __all__ = [  # every constant: kernels/gradient.py takes them all
     "N_LEAN",
     "N_OUT",
     "N_ROW",
+    "N_X",
     "X_EULER",
     "X_GRAVITY",
     "X_IGNORED",
@@ -85,7 +86,7 @@ C_BETA = 0  # rad/s
 C_MAG_MODE = 1  # FORWARD_ESTIMATED ... FULL_FIXED
 C_EXACT = 2  # 1: q ⊗ exp(ω dt/2); 0: q + q̇ dt
 C_GRAVITY = 3  # m/s²
-C_USE_MAG = 4  # 0: a given field is dropped by the entry points
+C_USE_MAG = 4  # 0: a given field is dropped (the estimator clears its bit in `has`)
 C_TO_FRAME = 5  # 4: c, q_frame = c ⊗ q_nwu
 C_UP = 9  # 3: up in the output frame
 N_COEF = 12
@@ -101,3 +102,4 @@ N_OUT = 10
 L_ACC = 0  # 3: the screened accelerometer sample the step used, m/s² (zeros: none)
 L_IGNORED = 3  # 1: ``ignored`` bits
 N_LEAN = 4
+N_X = N_LEAN  # values per sample ``run`` writes

@@ -10,7 +10,7 @@ from __future__ import annotations
 from margtrack.kernels.jit import njit
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def objective(w, x, y, z, dx, dy, dz, sx, sy, sz):
     """f(q, d, s) = q* ⊗ d ⊗ q - s = rotate_inverse(q, d) - s (004 "General Optimization").
 
@@ -40,7 +40,7 @@ def objective(w, x, y, z, dx, dy, dz, sx, sy, sz):
     return f1, f2, f3
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def jacobian(w, x, y, z, dx, dy, dz):
     """J = ∂f/∂[q1, q2, q3, q4] (3 x 4, row-major 12-tuple) of :func:`objective`.
 
@@ -63,7 +63,7 @@ def jacobian(w, x, y, z, dx, dy, dz):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def gradient_term(w, x, y, z, dx, dy, dz, sx, sy, sz):
     """∇f = Jᵀ f (004 "General Optimization Algorithm") for one reference direction."""
     f1, f2, f3 = objective(w, x, y, z, dx, dy, dz, sx, sy, sz)
@@ -87,7 +87,7 @@ def objective_jacobian(q, d, s, f_out, j_out):
             j_out[r, c] = j[4 * r + c]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def rotate(w, x, y, z, vx, vy, vz):
     """rotate(q, v) = R(q) v (body to earth)."""
     return (
@@ -103,7 +103,7 @@ def rotate(w, x, y, z, vx, vy, vz):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def rotate_inverse(w, x, y, z, vx, vy, vz):
     """rotate_inverse(q, v) = R(q)ᵀ v (earth to body)."""
     return rotate(w, -x, -y, -z, vx, vy, vz)

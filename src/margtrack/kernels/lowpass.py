@@ -29,7 +29,7 @@ from margtrack.kernels.jit import njit
 PASS_THROUGH = (1.0, 0.0, 0.0, 0.0, 0.0)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def coefficients(cutoff_hz, dt_s, order):
     """(b0, b1, b2, a1, a2) of the order-1 or order-2 Butterworth low-pass for one ``dt``.
 
@@ -50,7 +50,7 @@ def coefficients(cutoff_hz, dt_s, order):
     return b0, 2.0 * b0, b0, 2.0 * (k * k - 1.0) * norm, (1.0 - root2 * k + k * k) * norm
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def start(history, x, y, z):
     """Put a filter in steady state at the sample (x, y, z); return that sample."""
     for row in range(4):
@@ -60,7 +60,7 @@ def start(history, x, y, z):
     return x, y, z
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def step(history, x, y, z, coef):
     """Filter one sample of a triad with coefficients ``coef``; update ``history`` (4, 3)."""
     b0, b1, b2, a1, a2 = coef

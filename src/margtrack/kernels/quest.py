@@ -45,7 +45,7 @@ NEWTON_MAX_STEPS = 10
 ROTATION_THRESHOLD = 0.01
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def adjugate_column(lam, b11, b12, b13, b21, b22, b23, b31, b32, b33):
     """Shuster & Oh's ``(γ, Xx, Xy, Xz)`` for attitude profile B at eigenvalue λ."""
     sigma = b11 + b22 + b33
@@ -74,7 +74,7 @@ def adjugate_column(lam, b11, b12, b13, b21, b22, b23, b31, b32, b33):
     return gamma, xx, xy, xz
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def newton_eigenvalue(lam0, b11, b12, b13, b21, b22, b23, b31, b32, b33):
     """λ_max of Davenport's K by Newton-Raphson on Shuster & Oh's characteristic
     equation from ``lam0`` (the sum of the weights): ``(λ, f'(λ))``."""
@@ -110,7 +110,7 @@ def newton_eigenvalue(lam0, b11, b12, b13, b21, b22, b23, b31, b32, b33):
     return lam, slope
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def quest_unit(a1, ux, uy, uz, ax, ay, az, a2, hx, hy, hz, mx, my, mz, ref_cos, ref_sin,
                newton):
     """QUEST quaternion (w >= 0) of two checked unit pairs: (axis, w, x, y, z).

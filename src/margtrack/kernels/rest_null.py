@@ -43,7 +43,7 @@ RC_MAX_RATE = 4
 N_RC = 5
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _angle_cos(ax, ay, az, bx, by, bz):
     """Cosine of the angle between two vectors (1.0 if either is zero)."""
     na = math.sqrt(ax * ax + ay * ay + az * az)
@@ -53,7 +53,7 @@ def _angle_cos(ax, ay, az, bx, by, bz):
     return (ax * bx + ay * by + az * bz) / (na * nb)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def fresh_one(r, o, lanes=1):
     """A null block at ``r[o + j * lanes]``, j < N_REST_NULL, that has seen nothing (still,
     no null)."""
@@ -62,7 +62,7 @@ def fresh_one(r, o, lanes=1):
     r[o + RN_STILL * lanes] = 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def step_one(r, o, c, co, gx, gy, gz, ax, ay, az, mx, my, mz, has_mag, dt):
     """One sample through the null block ``r[o:]`` (coefficients ``c[co:]``); the null to
     subtract from it, rad/s (3 floats).
@@ -78,7 +78,7 @@ def step_one(r, o, c, co, gx, gy, gz, ax, ay, az, mx, my, mz, has_mag, dt):
     return step_at(r, o, 1, c, co, gx, gy, gz, ax, ay, az, mx, my, mz, has_mag, dt)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def step_at(r, o, lanes, c, co, gx, gy, gz, ax, ay, az, mx, my, mz, has_mag, dt):
     """:func:`step_one` with the block's slot j at ``r[o + j * lanes]`` (a lane of
     interleaved rows, ``contract_lanes``)."""

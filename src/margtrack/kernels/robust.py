@@ -37,19 +37,19 @@ from __future__ import annotations
 
 import math
 
-from margtrack.kernels import contract, contract_lanes
+from margtrack.kernels import contract
 from margtrack.kernels._quat import mul
-from margtrack.kernels.contract import N_SCOEF
-from margtrack.kernels.jit import njit, to_fixed_tuple
+from margtrack.kernels.jit import njit
 from margtrack.kernels.robust_gains import (  # noqa: F401 (butterworth_coefficients: kernel.*)
     butterworth_coefficients,
     gains_ready_at,
 )
 from margtrack.kernels.robust_layout import *  # noqa: F403 (the layout, as this module's)
-from margtrack.kernels.robust_step import H, outputs_at, step_at
+from margtrack.kernels.robust_step import H, outputs_at
+from margtrack.kernels.robust_step import step_at as _step_at
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _sensor_at(st, o, lanes, coef):
     """What is known of a sensor before its first sample: bias 0 with the initial
     variance, the field reference as given (or none). The row's slot j is
@@ -74,7 +74,7 @@ def fresh(rows, coefs):
         _sensor_at(rows[s], 0, 1, coef)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
     """(Re)start at q (output frame): the orientation, low-passes, rest detector and
     start-up afresh; the bias and the field reference only the first time."""
@@ -98,13 +98,13 @@ def _start_at(st, o, lanes, coef, first, qw, qx, qy, qz):
     st[o + R_STILL * lanes] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _start(row, coef, first, qw, qx, qy, qz):
     """:func:`_start_at` on one sensor's row."""
     _start_at(row, 0, 1, coef, first, qw, qx, qy, qz)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _hold_at(st, o, lanes, coef, xa, xo, outs):
     """Extra outputs of the current state (before the first start: the held quaternion)."""
     if st[o + contract.K_STARTS * lanes] == 0.0:
@@ -118,7 +118,7 @@ def _hold_at(st, o, lanes, coef, xa, xo, outs):
     outputs_at(st, o, lanes, coef[C_NED] > 0.5, q6w, q6x, q6y, q6z, xa, xo, outs)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _hold(row, coef, x_out):
     """:func:`_hold_at` on one sensor's row."""
     _hold_at(row, 0, 1, coef, x_out, 0, 1)
@@ -131,11 +131,11 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
     (numba's inliner copies an inlined body's variables once per block: the entry points
     compiled in 104 s, then 56 s; same results to the bit, no measurable cost); no
     reference counting: it creates no arrays."""
-    return step_at(row, 0, 1, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, 0,
+    return _step_at(row, 0, 1, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, 0,
                    x_out, 0, 1, False)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     """Whether this sample takes one of ``step_at``'s rare branches (no interval, the first
     accelerometer samples since a start, an all-zero accelerometer, gains not cached for
@@ -154,71 +154,6 @@ def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     return not (ready & (field_ready | (not has_mag)))
 
 
-@njit(cache=True, nogil=True, _nrt=False)
-def series(rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples on the shared clock's values (``contract.series``)."""
-    contract.series(_start, _step, _hold, rows, coefs, dts, ks, tflags, gyr, acc, mag,
-                    has, q_out, x_out, flags_out)
+N_X = N_OUT  # what ``run`` writes per sample
 
-
-@njit(cache=True, nogil=True)
-def run(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples (``contract.run_series`` with :func:`series`)."""
-    contract.run_series(series, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
-                        flags_out)
-
-
-@njit(cache=True, error_model="numpy", _nrt=False)
-def lanes_block(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
-                flags_out, frame_major, s_in):
-    """One block of sensors in lockstep, vectorised across them (``contract_lanes.block``)."""
-    # (plain global names: numba sees them as the constants to_fixed_tuple needs)
-    scoef, coef = to_fixed_tuple(coefs, N_SCOEF), to_fixed_tuple(coefs[N_SCOEF:], N_COEF)
-    contract_lanes.block(_start_at, step_at, _hold_at, _rare_at, N_ROW, N_OUT, st, rows, s0,
-                         scoef, coef, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
-                         flags_out, frame_major, s_in)
-
-
-#: slots per lane of :func:`lanes_block`'s buffer
-LANES_WIDTH = N_ROW + contract_lanes.N_B + N_OUT
-
-
-@njit(cache=True, nogil=True)
-def run_lanes(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """:func:`run` by blocks of sensors in lockstep (``contract_lanes.run_blocks``); the same
-    results."""
-    contract_lanes.run_blocks(lanes_block, LANES_WIDTH, rows, clock, coefs, t, gyr, acc, mag, has,
-                              q_out, x_out, flags_out, False, 0)
-
-
-@njit(cache=True, nogil=True)
-def run_lanes_frames(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out, s_in):
-    """:func:`run_lanes` on frame-major inputs (N, S', 3), the rows' sensors from ``s_in``."""
-    contract_lanes.run_blocks(lanes_block, LANES_WIDTH, rows, clock, coefs, t, gyr, acc, mag, has,
-                              q_out, x_out, flags_out, True, s_in)
-
-
-@njit(cache=True)
-def sample(row, coef, scoef, clk, imu, has, q_out, x_out):
-    """One screened sample of one sensor (``contract.sample``), compiled once for
-    :func:`update` and :func:`update_one`."""
-    return contract.sample(_start, _step, _hold, row, coef, scoef, clk, imu, has, q_out, x_out)
-
-
-@njit(cache=True)
-def update(rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """One sample of S sensors (``contract.update_samples``)."""
-    contract.update_samples(sample, rows, clock, coefs, dt, gyr, acc, mag, has, q_out, x_out,
-                            flags_out)
-
-
-@njit(cache=True)
-def update_one(rows, clock, coefs, dt, g, a, m, has, out):
-    """One sample of one sensor (``contract.update_one``); returns the flags."""
-    return contract.update_one(sample, rows, clock, coefs, dt, g, a, m, has, out)
-
-
-@njit(cache=True)
-def start(rows, coefs, quat0):
-    """Start S sensors at quat0 (S, 4) (``contract.start_rows``)."""
-    contract.start_rows(_start, rows, coefs, quat0)
+run, lanes, start = contract.entry_points(__name__)

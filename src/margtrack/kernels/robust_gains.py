@@ -27,7 +27,7 @@ from margtrack.kernels.robust_layout import (
 )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _lowpass_gain(dt, tau):
     """First-order low-pass gain for a time constant tau (s); 1 when tau <= 0."""
     if tau <= 0.0:
@@ -49,21 +49,21 @@ def butterworth_coefficients(step, tau):
     return c * c / d, 2.0 * (c * c - 1.0) / d, (1.0 - math.sqrt(2.0) * c + c * c) / d
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _bw_step(b0, a1, a2, s1, s2, x):
     """One sample through the low-pass (transposed direct form II): (y, s1, s2)."""
     y = b0 * x + s1
     return y, 2.0 * b0 * x - a1 * y + s2, b0 * x - a2 * y
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _bw_hold(b0, a1, a2, x):
     """States (s1, s2) of the low-pass in the steady state of a constant input x."""
     s2 = (b0 - a2) * x
     return (2.0 * b0 - a1) * x + s2, s2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _slot_matches_at(st, o, lanes, g, coef, step):
     """Whether the gains of the slot at row offset ``g`` (the row's slot j at
     ``st[o + j * lanes]``) were computed for this interval and these time constants."""
@@ -79,7 +79,7 @@ def _slot_matches_at(st, o, lanes, g, coef, step):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def gains_at(st, o, lanes, coef, step):
     """The row offset of the slot holding the gains for interval ``step``; computed (3
     ``exp``, a ``tan``) only when neither slot has them for this interval and the time
@@ -110,7 +110,7 @@ def gains_at(st, o, lanes, coef, step):
     return g
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def gains_ready_at(st, o, lanes, coef, step):
     """Whether one of the two slots has the gains for ``step`` (then :func:`gains_at`
     computes nothing)."""
@@ -119,7 +119,7 @@ def gains_ready_at(st, o, lanes, coef, step):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def gains_values_at(st, o, lanes, g):
     """(k_rest, k_ref, k_mag, b0, a1, a2) of the slot at row offset ``g``."""
     i = o + g * lanes
@@ -127,7 +127,7 @@ def gains_values_at(st, o, lanes, g):
             st[i + G_BW * lanes], st[i + (G_BW + 1) * lanes], st[i + (G_BW + 2) * lanes])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def gains_steady_at(st, o, lanes, coef, step):
     """:func:`gains_at` and the gains it points to, when :func:`gains_ready_at` holds:
     the same slot, in-use mark and values, chosen by selects between the two slots'

@@ -36,7 +36,7 @@ from margtrack.kernels.robust_layout import *  # noqa: F403 (the layout)
 H = math.sqrt(0.5)  # ENU <-> NED: q_ned = (0, h, h, 0) ⊗ q_enu, and back the same way
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def rotate(w, x, y, z, vx, vy, vz):
     """q ⊗ v ⊗ q* for unit q."""
     tx = 2.0 * (y * vz - z * vy)
@@ -49,7 +49,7 @@ def rotate(w, x, y, z, vx, vy, vz):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _wrap(angle):
     """An angle in (-3 pi, 3 pi) wrapped to [-pi, pi] (the differences and sums of two
     wrapped angles here); the same as ``atan2(sin, cos)`` to rounding, at a fraction of
@@ -58,7 +58,7 @@ def _wrap(angle):
                   select(angle < -math.pi, angle + 2.0 * math.pi, angle))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def to_output_frame(ned, w, x, y, z):
     """q (ENU) in the output frame: to NED when ``ned``. Both computed, one selected
     (``jit.select``): a branch here made each output's store a masked store in lockstep."""
@@ -66,7 +66,7 @@ def to_output_frame(ned, w, x, y, z):
     return select(ned, nw, w), select(ned, nx, x), select(ned, ny, y), select(ned, nz, z)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def outputs_at(st, o, lanes, ned, q6w, q6x, q6y, q6z, xa, xo, outs):
     """Extra output k to ``xa[xo + k * outs]``: the 6-D quaternion (ENU in; to NED when
     ``ned``), the bias and its deviation."""
@@ -82,7 +82,7 @@ def outputs_at(st, o, lanes, ned, q6w, q6x, q6y, q6z, xa, xo, outs):
     xa[xo + (X_BIAS_SD + 2) * outs] = st[i_sd + 2 * lanes]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _bias_update(st, o, lanes, k, p, gain, u, live):
     """Bias axis k after a Kalman update with this gain on the measurement residual u, if
     ``live`` (``jit.keep``: in lockstep computed whatever ``live``, the old value kept)."""
@@ -91,7 +91,7 @@ def _bias_update(st, o, lanes, k, p, gain, u, live):
     keep(st, o + (R_BIAS_VAR + k) * lanes, live, p, lanes)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _rest(st, o, lanes, coef, k_rest, step, g0, g1, g2, a0, a1, a2, acc_ok):
     """Rest detection (small deviation from slow means, small rate) and, at rest, the
     bias update from the gyro's slow mean; returns whether at rest."""
@@ -134,7 +134,7 @@ def _rest(st, o, lanes, coef, k_rest, step, g0, g1, g2, a0, a1, a2, acc_ok):
     return rest
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _motion_bias(st, o, lanes, k, r, u, v, live):
     """Bias axis k from the horizontal correction rate u, weighted by how much of the
     axis lies in the horizontal plane (1 - v²), if ``live``."""
@@ -146,7 +146,7 @@ def _motion_bias(st, o, lanes, k, r, u, v, live):
         _bias_update(st, o, lanes, k, (1.0 - gain * horizontal) * p, -gain, u, live)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _incline(st, o, lanes, coef, b0, a1, a2, step, x0, x1, x2, rest, steady):
     """The low-passed accelerometer in I must point up: q_acc corrected by the shortest
     arc (004); in motion the applied correction rate is a bias measurement. (b0, a1, a2):
@@ -205,7 +205,7 @@ def _incline(st, o, lanes, coef, b0, a1, a2, step, x0, x1, x2, rest, steady):
             _motion_bias(st, o, lanes, 2, r, uz, vz, moving)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz):
     """Heading from the horizontal field (004's vector rejection), unless the field's norm
     or dip disagrees with the tracked reference; returns whether it did (disturbed).
@@ -277,7 +277,7 @@ def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz):
     return disturbed
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _heading_steady(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, has_mag):
     """:func:`_heading` in the lockstep pass (both references known, step > 0; the field
     used only with ``has_mag``): the same values, each slot stored whatever the branches
@@ -319,7 +319,7 @@ def _heading_steady(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, has_mag)
     return disturbed
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, qa, qo, xa, xo,
             outs, steady):
     """One screened sample (an all-zero acc or mag: no measurement; dt 0: nothing to

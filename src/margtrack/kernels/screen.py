@@ -9,9 +9,10 @@ the policy in words). The sentinels the method kernels honour:
 
 Flag bits are those of ``estimator/flags.py`` (kept as plain ints here: numba).
 
-The per-sample functions are inlined into their callers (numba ``inline="always"``): the
-screening is most of a cheap method's sample, and as a call it cost 12-17 % of the
-gradient and Bachmann kernels (same results, bit for bit).
+:func:`screen_at` is compiled once and called by every method's ``run`` (inlined into each
+method it would be compiled again for each, the larger part of their compile time); the
+lockstep blocks inline it (:data:`screen_at_inline`) to vectorise it across sensors. Its
+helpers are inlined into it.
 """
 
 from __future__ import annotations
@@ -86,7 +87,7 @@ def fresh(sc):
         sc[s, S_REF + R_CAND_DIP] = math.nan
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def time_one(clock, max_gap, ti):
     """Interval and clock flag of one timestamp after ``clock[0]`` (nan: none yet); updates it.
 
@@ -119,12 +120,12 @@ def screen_time(t, t_last, max_gap, dt_out, flags_out):
     return clock[0]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _finite3(x, y, z):
     return math.isfinite(x) and math.isfinite(y) and math.isfinite(z)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def ref_gain(step):
     """Gain of the field reference's slow tracking over an interval ``step`` s (0: none).
 
@@ -239,7 +240,13 @@ def screen_at(coef, st, o, lanes, step, k_ref, time_flags, g0, g1, g2, a0, a1, a
     return f, g0, g1, g2, a0, a1, a2, m0, m1, m2
 
 
-@njit(cache=True)
+#: :func:`screen_at` inlined where it is called: the lockstep blocks (``contract_lanes``)
+#: vectorise its loop across sensors only with its body in the loop. Elsewhere it is
+#: called, compiled once for every method.
+screen_at_inline = njit(cache=True, inline="always")(screen_at.py_func)
+
+
+@njit(cache=True, inline="always")
 def _axis_usable(st, o, lanes, step, k, mk, wk, rate2, stuck_s, n_changed, live):
     """:func:`_field_usable` for field axis k (value mk, rate wk about it): updates the
     axis's previous value, hold time, peak and clip level if ``live``; returns whether it
@@ -269,7 +276,7 @@ def _axis_usable(st, o, lanes, step, k, mk, wk, rate2, stuck_s, n_changed, live)
     return ok
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _field_usable(coef, st, o, lanes, step, w0, w1, w2, m0, m1, m2, live):
     """Whether a finite field sample is usable: no axis stuck or at a learned clip level.
     The axes' state moves only if ``live`` (the sample is finite).
@@ -321,7 +328,7 @@ def screen_samples(coef, dt, time_flags, gyr, acc, mag, has_mag, has_gyr, sc,
             flags_out[s, i] = f
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _acc_turn_rate(st, o, lanes, acc_ok, a0, a1, a2, step):
     """Rate (rad/s, body) that turned the accelerometer's direction since the last usable one.
 
@@ -341,7 +348,7 @@ def _acc_turn_rate(st, o, lanes, acc_ok, a0, a1, a2, step):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _disturbed(coef, st, o, lanes, step, k, acc_ok, a0, a1, a2, m0, m1, m2, live):
     """How far the field is from the tracked reference: 0 close, 1 disturbed, 2 absurd.
     The reference's state moves only if ``live`` (the sample is usable and not skipped).

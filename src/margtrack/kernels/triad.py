@@ -35,7 +35,7 @@ PARALLEL = 3
 SOLVER_FAILED = 4
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def unit_pair(ax, ay, az, mx, my, mz):
     """Check and normalise one accelerometer/magnetometer pair.
 
@@ -57,7 +57,7 @@ def unit_pair(ax, ay, az, mx, my, mz):
     return OK, ax, ay, az, mx, my, mz
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def rotate(w, x, y, z, vx, vy, vz):
     """``q ⊗ v ⊗ q*`` for a unit quaternion q = (w, x, y, z): body vector v to earth."""
     tx, ty, tz = cross(x, y, z, vx, vy, vz)
@@ -66,7 +66,7 @@ def rotate(w, x, y, z, vx, vy, vz):
     return vx + w * tx + cx, vy + w * ty + cy, vz + w * tz + cz
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def level(pw, px, py, pz, ax, ay, az, ux, uy, uz):
     """The orientation p levelled onto the measured gravity, heading kept: ``c ⊗ p``.
 
@@ -110,7 +110,7 @@ def level(pw, px, py, pz, ax, ay, az, ux, uy, uz):
     return w * inv, x * inv, y * inv, z * inv
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def reference_triad(ux, uy, uz, nx, ny, nz):
     """Reference triad s1, s2, s3 (002 eqs. 1-3) from earth up and north, as 9 numbers.
 
@@ -123,7 +123,7 @@ def reference_triad(ux, uy, uz, nx, ny, nz):
     return ux, uy, uz, s2x, s2y, s2z, s3x, s3y, s3z
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def triad_unit(ax, ay, az, mx, my, mz, s1x, s1y, s1z, s2x, s2y, s2z, s3x, s3y, s3z):
     """TRIAD quaternion (w >= 0, body to earth) of a checked unit pair (flag OK).
 
