@@ -34,7 +34,7 @@ from rich.table import Table
 
 from margtrack.batch import Pool, open_pool, run_batch
 from margtrack.batch.inputs import expand_inputs, output_names
-from margtrack.bench.chunked import run_file
+from margtrack.run.chunked import run_file
 
 BROAD = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "broad"
 

@@ -29,13 +29,13 @@ from numba import njit
 
 from margtrack import frames
 from margtrack.bench.speed import measure, print_table, speed_input
-from margtrack.filters.bias_kf import (
+from margtrack.methods.bias_kf import (
     BiasKalman,
     BiasKalmanParams,
     initial_covariance,
     track_all_accelerometer,
 )
-from margtrack.kernels.bias_kf import (
+from margtrack.methods.bias_kf.kernel import (
     _triad,
     fill_phi_q,
     fill_qtilde,
@@ -150,8 +150,8 @@ def main() -> None:
     ahrs_batch = measure("ahrs EKF (batch constructor)", lambda: EKF(
         gyr=gyr[:k], acc=acc[:k], mag=mag[:k], frequency=RATE_HZ), k, repeats=1)
 
-    from margtrack.estimators.all_accelerometer import all_accelerometer_noise, angular_velocity
     from margtrack.sim import all_accelerometer as aa
+    from margtrack.single_frame.all_accelerometer import all_accelerometer_noise, angular_velocity
 
     rec = aa.simulate_all_accelerometer(
         aa.tremor_motion(200.0, 500.0, seed=1), acc_noise_m_s2_sqrt_hz=1e-3, seed=2)

@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 from margtrack.bench.speed import Throughput, measure, speed_input
-from margtrack.filters.complementary import Bachmann
+from margtrack.methods.bachmann import Bachmann
 
 RATE_HZ = 286.0
 

@@ -32,7 +32,7 @@ import argparse
 import numpy as np
 
 from margtrack.bench.speed import Throughput, measure, print_table, speed_input
-from margtrack.filters.ekf import MarinsEkf, MarinsEkfParams
+from margtrack.methods.ekf import MarinsEkf, MarinsEkfParams
 
 RATE_HZ = 285.714
 N_SENSORS = 8

@@ -24,7 +24,7 @@ import argparse
 import numpy as np
 
 from margtrack.bench.speed import Throughput, measure, print_table, speed_input
-from margtrack.filters.gradient import Gradient
+from margtrack.methods.gradient import Gradient
 
 RATE_HZ = 285.714  # BROAD's sampling rate
 N_SENSORS = 15

@@ -308,7 +308,7 @@ def profile_split(profiler: cProfile.Profile, frames: int) -> str:
     # the kernel called by run_into itself, or over threads (run_threaded, its wall time
     # in this thread: the calling thread's part and the wait for the others)
     kernel = sum(t for (f, _, n), v in entries.items()
-                 if "/kernels/" in f and n in ("run", "lanes")
+                 if "/methods/" in f and n in ("run", "lanes")
                  for (cf, _, cn), (_, _, t, _) in v[4].items()
                  if not (cf.endswith("sensor_threads.py") and cn == "part"))
     kernel += total("estimator/sensor_threads.py", "run_threaded")

@@ -12,7 +12,7 @@ Frames: ahrs's Madgwick estimates the orientation in NWU (x north, y west, z up;
 docs/conventions.md). BROAD's truth is ENU, so every output is converted,
 ``q_enu = qz(+90°) ⊗ q_nwu``, before scoring. The start is the TRIAD orientation of the first
 sample, the same one ahrs's own MARG start (``ecompass``) gives (tested in
-tests/filters/test_gradient_ahrs.py). ahrs is pure Python (~56 µs per sample on an idle
+tests/methods/test_gradient_ahrs.py). ahrs is pure Python (~56 µs per sample on an idle
 core, ~50 s per β over the 858,735 BROAD samples), so the β grid is split over ``--jobs``
 processes: about 2 min for the default 4 β on 2 idle cores.
 
@@ -21,7 +21,7 @@ comparison margtrack's ``gradient`` filter tuned the same way in the same run (i
 the table of its best β, which is its documented default).
 
 ``--rest-null`` first subtracts from every trial's gyro the null that margtrack's
-``bachmann`` and ``ekf`` take from the still start (``margtrack.filters._rest_null``, 1 s
+``bachmann`` and ``ekf`` take from the still start (``margtrack.methods.rest_null``, 1 s
 minimum), so the filters without a bias state can be compared on the same input.
 """
 
@@ -42,10 +42,10 @@ from margtrack import quaternion as quat
 from margtrack.bench.broad import format_table, group_order
 from margtrack.bench.runner import Scores
 from margtrack.bench.tune import tune
-from margtrack.estimators.base import Estimator, Params, State
-from margtrack.filters._rest_null import RestNullState, subtract_rest_null
-from margtrack.filters.gradient import Gradient
+from margtrack.estimator import Estimator, Params, State
 from margtrack.io import broad_trials, read_broad
+from margtrack.methods.gradient import Gradient
+from margtrack.methods.rest_null import RestNullState, subtract_rest_null
 from margtrack.recording import Recording
 
 BROAD = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "broad"

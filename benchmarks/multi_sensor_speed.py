@@ -25,7 +25,7 @@ must move per sample, 9 input and 4 output float64 = 104 bytes, over this machin
 bandwidth measured here with numpy) and the serial-chain floor (one quaternion
 integration step per sample, a minimal numba loop over one stream, the shortest
 dependent chain any filter has), each divided by the threads for the many-sensor case.
-Also printed: the input screening alone (``kernels/screen.py``, which every method runs
+Also printed: the input screening alone (``estimator/screen_kernel.py``, which every method runs
 before its own step) over the sensors' windows on one thread, and the load average before
 and after (the machine may be shared: figures under load are slower).
 """
@@ -114,7 +114,7 @@ def print_floors(gyr: np.ndarray, repeats: int = 3) -> None:
 
 def screening_ns(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, repeats: int) -> float:
     """ns per sample of the input screening alone over (S, N, 3) arrays, one thread."""
-    from margtrack.kernels import screen
+    from margtrack.estimator import screen_kernel as screen
 
     coef = methods.create("bachmann")._coefs[: screen.N_COEF].copy()
     n = gyr.shape[1]

@@ -3,9 +3,8 @@
 Run: ``python benchmarks/startup.py [--repeat 10] [--no-cold]``. Prints:
 
 1. the median wall time of a new process running ``margtrack run rec.h5 -o out.h5``
-   (warm caches: the warm-up run compiles what is missing, numba's cache and the quick-start
-   build of ``margtrack.kernels.aot``), the same with ``MARGTRACK_AOT=0`` (numba loads its
-   cache), and of a Python script doing the same with vqf (read the HDF5 with h5py,
+   (warm cache: the warm-up run compiles what is missing into numba's cache), and of a
+   Python script doing the same with vqf (read the HDF5 with h5py,
    ``VQF.updateBatch``, write the quaternions with h5py), and the ratios (target: at most
    3); measured with hyperfine when it is installed, else a loop of subprocesses;
 2. the import time of what ``margtrack run`` loads (``python -X importtime``): the total
@@ -158,13 +157,10 @@ def main() -> None:
         io.write(rec, rec_path)
         script.write_text(VQF_SCRIPT)
         ours = [margtrack_exe(), "run", str(rec_path), "-o", str(folder / "out.h5")]
-        jit_only = ["env", "MARGTRACK_AOT=0", margtrack_exe(), "run", str(rec_path), "-o",
-                    str(folder / "jit.h5")]
         theirs = [sys.executable, str(script), str(rec_path), str(folder / "vqf.h5")]
         if "--force" in subprocess.run([margtrack_exe(), "run", "--help"], capture_output=True,
                                        text=True).stdout:
             ours.append("--force")  # the output exists after the first run
-            jit_only.append("--force")
         (folder / "floor_kernel.py").write_text(NUMBA_FLOOR_KERNEL)
         floor = [sys.executable, "-c", "import floor_kernel; floor_kernel.twice(1.0)"]
         tool = "hyperfine" if shutil.which("hyperfine") else "a subprocess loop, in turns"
@@ -174,15 +170,13 @@ def main() -> None:
         old_cwd = os.getcwd()
         os.chdir(folder)  # the floor kernel's module and cache live in the temporary folder
         try:
-            t = median_wall_s({"ours": ours, "jit": jit_only, "vqf": theirs, "floor": floor},
+            t = median_wall_s({"ours": ours, "vqf": theirs, "floor": floor},
                               args.repeat)
         finally:
             os.chdir(old_cwd)
         print(f"margtrack run : {t['ours']:.3f} s")
         print(f"vqf script    : {t['vqf']:.3f} s")
         print(f"ratio         : {t['ours'] / t['vqf']:.2f} (target <= 3)")
-        print(f"without the quick-start build (MARGTRACK_AOT=0): {t['jit']:.3f} s, ratio "
-              f"{t['jit'] / t['vqf']:.2f}")
         print(f"numba floor   : {t['floor']:.3f} s (a new process calling one trivial cached "
               f"@njit kernel: ratio {t['floor'] / t['vqf']:.2f} to the vqf script)")
 

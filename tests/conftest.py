@@ -9,10 +9,6 @@ from pathlib import Path
 
 import pytest
 
-# No quick-start builds from the commands under test (each would compile for half a minute);
-# tests/kernels/test_aot.py switches them on in a temporary cache folder.
-os.environ["MARGTRACK_AOT"] = "0"
-
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 BROAD = DATA / "broad"
 XIO = DATA / "xio_lower_body"

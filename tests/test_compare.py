@@ -9,7 +9,7 @@ from margtrack import sim
 from margtrack.bench import external
 from margtrack.bench.compare import compare, plot_comparison
 from margtrack.bench.metrics import error_series
-from margtrack.filters.robust import Robust
+from margtrack.methods.robust import Robust
 
 
 def _recordings():

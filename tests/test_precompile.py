@@ -73,16 +73,6 @@ def test_jobs_below_one_are_refused(jobs):
         precompile(["triad"], jobs=jobs)
 
 
-def test_compiling_in_this_process_leaves_its_environment_as_it_was(monkeypatch):
-    monkeypatch.setenv("MARGTRACK_AOT", "1")
-    seconds = precompile(["triad"], jobs=1)
-    assert list(seconds) == ["triad"] and seconds["triad"] > 0.0
-    assert os.environ["MARGTRACK_AOT"] == "1"
-    monkeypatch.delenv("MARGTRACK_AOT")
-    precompile(["triad"], jobs=1)
-    assert "MARGTRACK_AOT" not in os.environ
-
-
 def test_nothing_is_compiled_without_numba_jit(monkeypatch):
     monkeypatch.setenv("NUMBA_DISABLE_JIT", "1")
     assert precompile(["triad"]) == {}

@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from margtrack import frames
 from margtrack import quaternion as quat
-from margtrack.estimators.triad import Triad
+from margtrack.single_frame.triad import Triad
 
 pytestmark = pytest.mark.kernel
 
@@ -111,7 +111,7 @@ def test_triad_is_003s_world_frame_direction_cosine_matrix():
 
 
 def test_the_single_sensor_kernel_used_for_initialisation_agrees_with_the_estimator():
-    from margtrack.kernels.triad import triad
+    from margtrack.estimator.triad_kernel import triad
 
     q_true = _random_quats(30, 13)
     acc, mag = _measure(q_true, "ENU")

@@ -7,8 +7,9 @@ The public API, re-exported here:
   phone loggers, a pandas DataFrame: ``io.read``, ``io.from_dataframe``); :func:`resample`
   puts a slower sensor's samples on the gyroscope's timestamps (004's interpolation);
 - :mod:`margtrack.sim`: simulated recordings with truth;
-- :func:`create` / :func:`available_methods` (:mod:`margtrack.methods`): estimators by name,
-  all following one contract (:class:`Estimator`, :class:`Estimate`);
+- :func:`create` / :func:`available_methods` (:mod:`margtrack.methods`, one folder per
+  method; :mod:`margtrack.single_frame`): estimators by name, all following one contract
+  (:class:`Estimator`, :class:`Estimate`);
 - :func:`error_series`, :func:`summarize` (:mod:`margtrack.bench.metrics`): errors in degrees.
 
 Submodules that pull in numba or h5py load on first use, so ``import margtrack`` is quick.
@@ -23,9 +24,9 @@ from margtrack import frames, quaternion
 from margtrack.recording import Recording, resample
 
 if TYPE_CHECKING:  # pragma: no cover
-    from margtrack import bench, body, calibration, estimators, filters, io, live, methods, sim
+    from margtrack import bench, body, calibration, io, live, methods, sim, single_frame
     from margtrack.bench.metrics import error_series, summarize
-    from margtrack.estimators.base import Estimate, Estimator
+    from margtrack.estimator import Estimate, Estimator
     from margtrack.methods import available as available_methods
     from margtrack.methods import create
 
@@ -35,16 +36,15 @@ _LAZY_MODULES = {
     "bench",
     "body",
     "calibration",
-    "estimators",
-    "filters",
     "io",
     "live",
     "methods",
     "sim",
+    "single_frame",
 }
 _LAZY_NAMES = {
-    "Estimate": ("margtrack.estimators.base", "Estimate"),
-    "Estimator": ("margtrack.estimators.base", "Estimator"),
+    "Estimate": ("margtrack.estimator", "Estimate"),
+    "Estimator": ("margtrack.estimator", "Estimator"),
     "available_methods": ("margtrack.methods", "available"),
     "create": ("margtrack.methods", "create"),
     "error_series": ("margtrack.bench.metrics", "error_series"),
@@ -61,8 +61,6 @@ __all__ = [
     "calibration",
     "create",
     "error_series",
-    "estimators",
-    "filters",
     "frames",
     "io",
     "live",
@@ -70,6 +68,7 @@ __all__ = [
     "quaternion",
     "resample",
     "sim",
+    "single_frame",
     "summarize",
 ]
 

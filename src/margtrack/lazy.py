@@ -1,7 +1,7 @@
 """Names of a package that load their module on first use (PEP 562).
 
 A package lists ``name -> submodule`` and gets a module ``__getattr__`` and ``__dir__``:
-``margtrack.filters.Robust`` imports ``margtrack.filters.robust`` only, so a command that
+``margtrack.methods.Robust`` imports ``margtrack.methods.robust`` only, so a command that
 runs one method, reads one format or opens no viewer loads nothing else.
 """
 

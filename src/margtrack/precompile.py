@@ -9,7 +9,7 @@ compile the same kernels at the same time. :func:`precompile` compiles them once
 each method in one process of a pool, the methods shared among the processes.
 
 A method is compiled by using it the way programs do, on a simulated recording: ``run``
-on one sensor (and, for a method with lockstep kernels, ``kernels/contract_lanes.py``, on
+on one sensor (and, for a method with lockstep kernels, ``estimator/lockstep.py``, on
 enough sensors for those), and ``update`` sample by sample on one sensor (past the unit
 check, so the one-sample kernel too) and on several. Several sensors over threads take
 the same kernels (``estimator/sensor_threads.py``). A method's parameters that select other
@@ -33,12 +33,6 @@ __all__ = ["precompile"]
 
 #: samples of the simulated recording
 _SAMPLES = 400
-#: seconds each method took to compile on an empty cache on the 2-core CI machine
-#: (2026-12-03, the line ``tests/conftest.py`` prints; ekf's two parts summed): the pool
-#: starts the longest first. A method not listed comes after, in registry order
-_COMPILE_S = {"ekf": 204.0, "robust": 199.0, "bachmann": 133.0, "gradient": 130.0,
-              "bias-kf": 91.0, "gyro": 77.0, "davenport": 46.0}
-
 #: a method's name and the parameters it is used with
 Unit = tuple[str, dict[str, object]]
 
@@ -81,9 +75,9 @@ def precompile(
             groups.setdefault(kernel.__name__ if kernel is not None else name, []).append(
                 (name, params))
             pending[name] += 1
-    # the longest compilations first, so that no process is left with one of them alone
-    # at the end (stable: the others in the registry's order)
-    tasks = sorted(groups.values(), key=lambda units: -_COMPILE_S.get(units[0][0], 0.0))
+    # the longest compilations first (methods with lockstep blocks compile those too), so
+    # that no process is left with one of them alone at the end
+    tasks = sorted(groups.values(), key=lambda units: not _has_lanes(units[0][0]))
     jobs = min(jobs, len(tasks))
     seconds = dict.fromkeys(chosen, 0.0)
     failures: dict[str, BaseException] = {}
@@ -141,6 +135,13 @@ def _compile_unit(name: str, params: dict[str, object]) -> float:
     rec = simulate_motion("random", duration_s=_SAMPLES / 100.0, rate_hz=100.0, seed=1)
     _use_variant(name, params, rec.gyr[:_SAMPLES], rec.acc[:_SAMPLES], rec.mag[:_SAMPLES])
     return time.perf_counter() - start
+
+
+def _has_lanes(name: str) -> bool:
+    """Whether the method's kernel has lockstep blocks (``contract.entry_points``)."""
+    from margtrack import methods
+
+    return getattr(getattr(methods.get(name), "kernel", None), "lanes", None) is not None
 
 
 def _use_frames(est: Any, lanes: list[np.ndarray]) -> None:

@@ -12,13 +12,13 @@ import pytest
 
 import margtrack as mt
 from margtrack import io, methods
-from margtrack.bench.chunked import ROW_FIELDS, FileSummary, FlagTally, run_file
 from margtrack.bench.metrics import error_series, summarize
 from margtrack.estimator.flags import Flag, summary
 from margtrack.io.chunks import open_chunks
 from margtrack.io.csv import write_estimate_csv
 from margtrack.io.estimate_writer import EstimateWriter, estimate_fields
 from margtrack.io.hdf5 import write_estimate_hdf5
+from margtrack.run.chunked import ROW_FIELDS, FileSummary, FlagTally, run_file
 
 GAP_AT = 1500  # the first sample after the 2 s hole cut into the recording
 

@@ -10,7 +10,7 @@ import pytest
 
 from margtrack import frames, sim
 from margtrack import quaternion as quat
-from margtrack.bench import chunked, runner
+from margtrack.bench import runner
 from margtrack.bench.metrics import error_series, summarize
 from margtrack.bench.runner import (
     Adapter,
@@ -22,7 +22,8 @@ from margtrack.bench.runner import (
     run_method,
     score,
 )
-from margtrack.filters.robust import Robust
+from margtrack.methods.robust import Robust
+from margtrack.run import chunked
 
 
 def _still(n: int = 200, name: str = "still"):

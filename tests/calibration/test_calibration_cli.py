@@ -10,8 +10,8 @@ from typer.testing import CliRunner
 
 from margtrack import io
 from margtrack.calibration import load_calibration, run_guided
-from margtrack.calibration.cli import calibrate_app
 from margtrack.calibration.simulate_procedure import error_profile
+from margtrack.cli.calibrate import calibrate_app
 
 runner = CliRunner()
 

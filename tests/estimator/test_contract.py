@@ -9,12 +9,12 @@ from margtrack import methods
 from margtrack import quaternion as quat
 from margtrack.estimator import Flag
 from margtrack.estimator.initial import initial_orientation
-from margtrack.filters.gyro import GyroIntegration
+from margtrack.methods.gyro import GyroIntegration
 from margtrack.recording import Recording
 from margtrack.units import UnitError
 
-#: methods with update(); robust-offline refuses it (tests/filters/test_robust_offline.py)
-ONLINE = [n for n in methods.available() if not getattr(methods.get(n), "offline", False)]
+#: methods with update(); robust-offline refuses it (tests/methods/test_robust_offline.py)
+ONLINE = [r.name for r in methods.RECORDS if r.online]
 
 pytestmark = pytest.mark.kernel
 

@@ -9,7 +9,7 @@ import pytest
 
 from margtrack import sim
 from margtrack.estimator.outputs import Deferred, Outputs
-from margtrack.filters.gradient import Gradient
+from margtrack.methods.gradient import Gradient
 
 
 def _counting(value):

@@ -33,13 +33,13 @@ def test_threads_over_sensors_equal_each_sensor_alone(name, threaded, monkeypatc
     if threaded:  # 5 sensors in 3 threads: parts of 2, 1 and 2 sensors
         monkeypatch.setattr(compiled, "PARALLEL_MIN_SAMPLES", 0)
         monkeypatch.setattr(sensor_threads, "thread_count", lambda: 3)
-        real = sensor_threads.run_threaded
-        monkeypatch.setattr(compiled, "run_threaded",
-                            lambda *a, **k: parts.append(k) or real(*a, **k))
+    real = sensor_threads.run_threaded
+    monkeypatch.setattr(compiled, "run_threaded", lambda *a, **k: parts.append(k) or real(*a, **k))
     t, gyr, acc, mag = _sensors()
     together = methods.create(name).run(gyr=gyr, acc=acc, mag=mag, t=t)
     # (an offline method runs its kernel more than once)
-    assert (len(parts) > 0 and all(k == {"align": 1} for k in parts)) if threaded else not parts
+    expected = {"align": 1, "n_threads": None if threaded else 1}
+    assert parts and all(k == expected for k in parts)
     # the threads call numba's dispatcher: it must release the GIL to run alongside
     dispatcher = methods.get(name).kernel.run
     if hasattr(dispatcher, "targetoptions"):  # (not under NUMBA_DISABLE_JIT: plain Python)

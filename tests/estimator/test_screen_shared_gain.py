@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from margtrack.kernels import screen
+from margtrack.estimator import screen_kernel as screen
 
 
 def _coef() -> np.ndarray:

@@ -16,9 +16,9 @@ from typer.testing import CliRunner
 
 import margtrack as mt
 from margtrack import io, methods
-from margtrack.bench.chunked import run_file
 from margtrack.cli import app
 from margtrack.io.safe_output import atomic_output, check_output
+from margtrack.run.chunked import run_file
 
 runner = CliRunner()
 

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 from margtrack.estimator.params import specs
-from margtrack.filters.complementary import BachmannParams
 from margtrack.live.simulator import PeopleSimulation, SimulatorSource
 from margtrack.live.viewer_controls import control_label
+from margtrack.methods.bachmann import BachmannParams
 
 pytestmark = pytest.mark.browser
 

@@ -9,7 +9,7 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from margtrack.live.cli import live_command
+from margtrack.cli.live import live_command
 
 app = typer.Typer()
 app.command(name="live")(live_command)

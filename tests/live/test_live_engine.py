@@ -11,13 +11,13 @@ import pytest
 
 from margtrack import body, methods
 from margtrack import quaternion as quat
-from margtrack.filters.complementary import BachmannParams
 from margtrack.live.engine import MAX_BATCH_FRAMES, Engine
 from margtrack.live.lines import format_line
 from margtrack.live.protocol import iter_chunks
 from margtrack.live.replay import ReplaySource, replay_path
 from margtrack.live.simulator import PeopleSimulation, SimulatorSource
 from margtrack.live.udp import UdpSource, send_lines
+from margtrack.methods.bachmann import BachmannParams
 
 
 def _live_threads():

@@ -21,9 +21,9 @@ from margtrack import body, methods
 from margtrack import quaternion as quat
 from margtrack.body.kinematics import people_pose
 from margtrack.estimator.flags import DATA_FLAGS, Flag
-from margtrack.kernels.batch_close import close_sensors
 from margtrack.live.assembler import Frames
 from margtrack.live.avatars import Avatars
+from margtrack.live.batch_close_kernel import close_sensors
 from margtrack.live.clocks import SensorClocks
 from margtrack.live.engine import Engine
 from margtrack.live.filtering import SensorFilters

@@ -6,7 +6,7 @@ current (:mod:`margtrack.batch.state`), runs the rest where the :class:`Pool` sa
 (:mod:`margtrack.batch.cluster`) and writes ``summary.csv`` / ``summary.parquet``
 (:mod:`margtrack.batch.summary`).
 
-Per input the work is :func:`margtrack.bench.chunked.run_file` (the one runner, in
+Per input the work is :func:`margtrack.run.chunked.run_file` (the one runner, in
 chunks of bounded memory): an HDF5 output with the estimate and its health flags, and
 the figures of the summary row. One failing input is one ``failed`` row; it never stops
 the others. An existing output the batch did not write (no record of it) is kept unless
@@ -106,7 +106,7 @@ def process_one(config: BatchConfig, task: Task) -> dict[str, Any]:
 
     The output is replaced (``force``): :func:`run_batch` decided it may be.
     """
-    from margtrack.bench.chunked import run_file
+    from margtrack.run.chunked import run_file
 
     start = time.perf_counter()
     read_kwargs = _reading(task.file, config.read_kwargs)

@@ -15,7 +15,7 @@ from typing import Any
 
 from margtrack.bench.metrics import ErrorSummary
 from margtrack.bench.runner import KEYS, Scores, evaluate, evaluate_all
-from margtrack.estimators.base import Estimator
+from margtrack.estimator import Estimator
 from margtrack.recording import Recording
 
 __all__ = [

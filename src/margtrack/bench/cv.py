@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from margtrack.bench.runner import KEYS, Scores
 from margtrack.bench.tune import GridScores, Mapper, evaluate_grid
-from margtrack.estimators.base import Estimator
+from margtrack.estimator import Estimator
 from margtrack.recording import Recording
 
 __all__ = [

@@ -9,7 +9,7 @@
 - :func:`run_method` runs one method on one recording from a fresh state and times it;
 - :class:`ErrorAccumulator` sums the squared errors of an orientation series against the
   truth, a whole recording at once or chunk after chunk (``margtrack run`` and ``batch``
-  through :func:`margtrack.bench.chunked.run_file`), with the same figures either way;
+  through :func:`margtrack.run.chunked.run_file`), with the same figures either way;
 - :func:`score` turns an orientation series into a :class:`TrialScore` against the truth
   (one :class:`ErrorAccumulator` over the whole recording);
 - :func:`evaluate` is both, and :func:`evaluate_all` a set of trials into :class:`Scores`,

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from margtrack.bench.runner import Scores, evaluate_all
-from margtrack.estimators.base import Estimator, Params
+from margtrack.estimator import Estimator, Params
 from margtrack.methods import get, parse_params
 from margtrack.recording import Recording
 

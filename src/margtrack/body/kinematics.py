@@ -118,7 +118,7 @@ def people_pose(
     :func:`positions` of every person from its root: the same operations as
     :func:`segment_orientations` (without the time continuity) and :func:`positions`, to
     the last bit, in one compiled pass over people and segments
-    (:mod:`margtrack.kernels.body_pose`), shared among threads from
+    (:mod:`margtrack.body.pose_kernel`), shared among threads from
     ``THREADED_MIN_SEGMENTS`` segments: the live engine's avatars.
 
     Parameters
@@ -135,8 +135,8 @@ def people_pose(
     -------
     q_segment (A, K, 4), joints_m (A, K, 3) m, ends_m (A, K, 3) m.
     """
-    from margtrack.kernels.body_pose import first_non_unit
-    from margtrack.kernels.body_pose import people_pose as kernel
+    from margtrack.body.pose_kernel import first_non_unit
+    from margtrack.body.pose_kernel import people_pose as kernel
 
     q = np.ascontiguousarray(q_sensor, dtype=np.float64)
     idx = np.ascontiguousarray(index, dtype=np.intp)

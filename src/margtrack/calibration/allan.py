@@ -225,7 +225,7 @@ class NoiseDensities:
 
     def kalman_params(self) -> dict[str, float]:
         """The densities under the parameter names of the bias-augmented Kalman filter
-        (003; ``filters/bias_kf``): rad/s/√Hz, rad/s/√s (= rad/s²/√Hz), m/s²/√Hz."""
+        (003; ``methods/bias_kf``): rad/s/√Hz, rad/s/√s (= rad/s²/√Hz), m/s²/√Hz."""
         return {
             "gyr_noise_rad_s_sqrt_hz": self.gyr_noise_density_rad_s_sqrt_hz,
             "gyr_bias_walk_rad_s_sqrt_s": self.gyr_bias_walk_rad_s2_sqrt_hz,

@@ -1,7 +1,7 @@
 """Shared pieces of the ``margtrack calibrate`` commands: error handling, reading, tables.
 
-Used by :mod:`margtrack.calibration.cli` (the command app) and
-:mod:`margtrack.calibration.cli_guided` (the guided procedure, offline and live).
+Used by :mod:`margtrack.cli.calibrate` (the command app) and
+:mod:`margtrack.cli.calibrate_guided` (the guided procedure, offline and live).
 """
 
 from __future__ import annotations

@@ -24,14 +24,14 @@ __all__ = ["COMMAND_MODULES", "LAZY_COMMANDS", "app", "cli_unit_fix"]
 
 
 def _calibrate_command() -> click.Command:
-    from margtrack.calibration.cli import calibrate_app
+    from margtrack.cli.calibrate import calibrate_app
 
     return typer.main.get_command(calibrate_app)
 
 
 def _live_command() -> click.Command:
     from margtrack.cli.compiling import with_compile_notice
-    from margtrack.live.cli import live_command
+    from margtrack.cli.live import live_command
 
     single = typer.Typer(add_completion=False)
     single.command(name="live", help=LAZY_COMMANDS["live"][0])(

@@ -76,7 +76,7 @@ def _kernel_name(event: Any) -> str:
     func = getattr(data.get("dispatcher"), "py_func", None)
     if func is None:
         return "kernel"
-    module = str(getattr(func, "__module__", "")).removeprefix("margtrack.kernels.")
+    module = str(getattr(func, "__module__", "")).removeprefix("margtrack.")
     return f"{module}.{func.__qualname__}"
 
 

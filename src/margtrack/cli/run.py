@@ -63,8 +63,8 @@ def run(
     gyroscope's timestamps first, as a folder of per-sensor files would be.
     """
     from margtrack import methods
-    from margtrack.bench.chunked import run_file
     from margtrack.io.safe_output import check_output
+    from margtrack.run.chunked import run_file
 
     check_output(output, paths, force=force)  # before any reading or computing
     cal = None

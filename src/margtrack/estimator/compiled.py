@@ -1,7 +1,7 @@
 """Methods whose whole per-sample path is compiled: one call per ``update``, one per ``run``.
 
 A :class:`CompiledEstimator` keeps each sensor's state as one flat row (the contract's
-slots, ``kernels/contract.py``, then the method's own, named by ``state_layout``) and a
+slots, ``estimator/skeleton.py``, then the method's own, named by ``state_layout``) and a
 shared clock. Its kernel module has the entry points ``contract.entry_points`` generates
 from its step (``run``, ``lanes`` for many sensors in lockstep, ``start``), so the
 screening, the (re)starts and the method's step are one compiled call, and ``update`` is
@@ -20,7 +20,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from margtrack import quaternion as quat
+from margtrack.estimator import lockstep as kcl
 from margtrack.estimator import screening
+from margtrack.estimator import skeleton as kc
 from margtrack.estimator.compiled_state import CompiledState
 from margtrack.estimator.contract import Estimator
 from margtrack.estimator.estimate import Estimate
@@ -29,8 +31,6 @@ from margtrack.estimator.outputs import Deferred, Outputs
 from margtrack.estimator.params import Params
 from margtrack.estimator.sensor_threads import run_threaded
 from margtrack.estimator.units import UnitProbe
-from margtrack.kernels import contract as kc
-from margtrack.kernels import contract_lanes as kcl
 
 Array = NDArray[np.float64]
 
@@ -43,7 +43,7 @@ P = TypeVar("P", bound=Params)
 #: from this many samples in all: below it starting the threads costs more than they save
 PARALLEL_MIN_SAMPLES = 100_000
 #: from this many sensors, a kernel module with a lockstep entry point (``run_lanes``)
-#: runs them in blocks vectorised across the sensors (``kernels/contract_lanes.py``), with
+#: runs them in blocks vectorised across the sensors (``estimator/lockstep.py``), with
 #: the same results; fewer fill too few vector lanes
 LANES_MIN_SENSORS = 16
 
@@ -106,7 +106,7 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         return has
 
     def _in_lanes(self, n_sensors: int) -> bool:
-        """Whether ``n_sensors`` run in lockstep blocks (``kernels/contract_lanes.py``)."""
+        """Whether ``n_sensors`` run in lockstep blocks (``estimator/lockstep.py``)."""
         return n_sensors >= LANES_MIN_SENSORS and self.kernel.lanes is not None
 
     def takes_frames(self, n_sensors: int) -> bool:

@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from margtrack.estimator import screening
-from margtrack.kernels import contract as kc
+from margtrack.estimator import skeleton as kc
 
 Array = NDArray[np.float64]
 

@@ -8,7 +8,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from margtrack import frames
 from margtrack import quaternion as quat
-from margtrack.kernels import triad as triad_kernel
+from margtrack.estimator import triad_kernel
 
 Array = NDArray[np.float64]
 

@@ -1,7 +1,7 @@
 """The input policy: what is done with each sample before a method sees it.
 
 One policy for every method at every entry point (``run`` on arrays or Recordings,
-``update``, the live engine, files through the CLI), compiled in ``kernels/screen.py``:
+``update``, the live engine, files through the CLI), compiled in ``estimator/screen_kernel.py``:
 
 - a non-finite or out-of-range rate (``gyr_range_deg_s``) is flagged and replaced by the
   last good rate, so one absurd sample costs one sample's rotation, not the recording;
@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from margtrack.estimator import screen_kernel as kernel
 from margtrack.estimator.params import Params
-from margtrack.kernels import screen as kernel
 
 Array = NDArray[np.float64]
 
@@ -40,7 +40,7 @@ __all__ = ["ScreenState", "Screened", "screen"]
 class ScreenState:
     """Per-sensor memory of the screening (S sensors): ``packed`` (S, N_SCREEN).
 
-    The layout is ``kernels/screen.py``'s ``S_*`` offsets; the properties name the parts:
+    The layout is ``estimator/screen_kernel.py``'s ``S_*`` offsets; the properties name the parts:
     the last good rate (used in place of a bad one), the last usable acceleration, the
     previous field sample, how long each field axis has held its value while turning,
     the largest |value| and the learned clip level of each axis, and the field reference.

@@ -10,7 +10,7 @@
 - anything else :func:`margtrack.io.read` reads (CSV, BROAD, x-IMU3) is read whole and
   sliced; ``whole`` then holds that Recording.
 
-Used by :func:`margtrack.bench.chunked.run_file` (``margtrack run`` and ``batch``).
+Used by :func:`margtrack.run.chunked.run_file` (``margtrack run`` and ``batch``).
 """
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import DTypeLike, NDArray
 
 from margtrack.estimator.sensor_threads import in_threads
-from margtrack.kernels.frames_copy import frames_to_sensors
+from margtrack.live.frames_copy_kernel import frames_to_sensors
 
 __all__ = ["BatchBuffers", "frames_of"]
 
@@ -60,7 +60,7 @@ class BatchBuffers:
     def contiguous(self, name: str, values: NDArray[np.generic]) -> NDArray[np.generic]:
         """``values`` (S, N, k) itself if C-contiguous of the block's dtype, else a copy of it
         in block ``name`` (of frame-major samples, the (S, N, k) view of an (N, S, k) block
-        as sources deliver them, by :func:`~margtrack.kernels.frames_copy.frames_to_sensors`,
+        as sources deliver them, by :func:`~margtrack.live.frames_copy_kernel.frames_to_sensors`,
         four times numpy's speed)."""
         return self.contiguous_all([(name, values)])[0]
 

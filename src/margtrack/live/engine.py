@@ -48,7 +48,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from margtrack import methods
 from margtrack.body.offsets import Heading
-from margtrack.estimators.base import Estimator, Params
+from margtrack.estimator import Estimator, Params
 from margtrack.live.assembler import FrameAssembler, Frames, concatenate
 from margtrack.live.avatars import Avatars
 from margtrack.live.calibrations import Calibrations

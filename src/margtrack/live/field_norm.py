@@ -3,7 +3,7 @@
 A sensor's reference is the median of ``REF_SAMPLES`` finite, non-zero field norms from the
 start of its field data, one at most every ``REF_SPAN_S / REF_SAMPLES`` s of data time, so
 they span about its first ``REF_SPAN_S`` (the first second). They are collected as the
-batches come by a compiled pass over the sensors (:mod:`margtrack.kernels.field_norm`: the
+batches come by a compiled pass over the sensors (:mod:`margtrack.live.field_norm_kernel`: the
 frames due only, the median per sensor once its samples are in), while any sensor lacks a
 reference; nothing after. (The median of every sensor's whole first second in one batch
 stalled the engine's worker for 0.3-0.5 s at 84,000 sensors, and the catch-up after it broke
@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from margtrack.kernels.field_norm import feed_norms
+from margtrack.live.field_norm_kernel import feed_norms
 
 __all__ = ["REF_SAMPLES", "REF_SPAN_S", "FieldNormReference"]
 

@@ -18,7 +18,7 @@ live stream needs on top, per sensor:
 Counted per sensor: ``processed`` (samples run, not held), ``flagged`` (processed samples
 with a data flag of the input policy), ``reinitialised``. The checks, holds, last
 orientations and counts are one compiled pass over each sensor's samples
-(:func:`~margtrack.kernels.batch_close.close_sensors`; as numpy passes over the batch they
+(:func:`~margtrack.live.batch_close_kernel.close_sensors`; as numpy passes over the batch they
 were 1.3 ms per frame at 195,000 sensors); Python runs per sensor only for a sensor that
 failed.
 
@@ -47,8 +47,8 @@ from margtrack.estimator.compiled import CompiledEstimator
 from margtrack.estimator.contract import Estimator
 from margtrack.estimator.flags import DATA_FLAGS, Flag
 from margtrack.estimator.sensor_threads import in_threads, thread_count
-from margtrack.kernels.batch_close import close_sensors
 from margtrack.live.assembler import Frames
+from margtrack.live.batch_close_kernel import close_sensors
 from margtrack.live.buffers import BatchBuffers, frames_of
 from margtrack.live.isolation import finish_raised, reinitialise, restart, run_each
 
@@ -134,7 +134,7 @@ class SensorFilters:
     def _close(self, frames: Frames, a: int, b: int, q: Array, flags: NDArray[np.uint16]
                ) -> NDArray[np.intp]:
         """Frames a:b's orientations repaired and held, the last kept, the samples counted
-        (:func:`~margtrack.kernels.batch_close.close_sensors`, the sensors shared among
+        (:func:`~margtrack.live.batch_close_kernel.close_sensors`, the sensors shared among
         threads for a large batch); the sensors whose orientation was not finite."""
         stale = _NONE if frames.stale is None else np.ascontiguousarray(frames.stale[:, a:b])
         held = np.ascontiguousarray(frames.held[:, a:b])

@@ -29,12 +29,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from margtrack.estimator import screening
+from margtrack.estimator import screen_kernel, screening
+from margtrack.estimator import skeleton as kc
 from margtrack.estimator.compiled import UNRUN, CompiledState
 from margtrack.estimator.contract import Estimator
 from margtrack.estimator.flags import DATA_FLAGS, Flag
-from margtrack.kernels import contract as kc
-from margtrack.kernels import screen as screen_kernel
 
 Array = NDArray[np.float64]
 

@@ -12,7 +12,7 @@ with ``R`` body-to-earth, ``a`` the earth-frame linear acceleration of the body 
 ``g_up`` the gravity reference (what a level accelerometer reads at rest), ``ω`` and ``α``
 the body-frame angular velocity and acceleration. Differences between two sensors cancel
 the first term: ``f_j - f_i = (Ω×Ω× + Ω̇×) P_ij`` (003 eq. 1), which
-:mod:`margtrack.estimators.all_accelerometer` solves for ``ω``.
+:mod:`margtrack.single_frame.all_accelerometer` solves for ``ω``.
 
 Motions come with analytic ``ω`` and ``α``: :func:`tremor_motion` (slow hand motion plus
 8-12 Hz physiological tremor of tens of µm, 003 II-A) or any

@@ -20,7 +20,7 @@ import numpy as np
 from margtrack import quaternion as quat
 from margtrack import sim
 from margtrack.bench.experiments import ExperimentResult
-from margtrack.filters.complementary import Bachmann, BachmannAccMag
+from margtrack.methods.bachmann import Bachmann, BachmannAccMag
 from margtrack.recording import Recording
 
 __all__ = ["EXPERIMENTS"]

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from margtrack import quaternion as quat
 from margtrack.bench.experiments import ExperimentResult
 from margtrack.bench.metrics import error_series
-from margtrack.filters.gradient import Gradient
+from margtrack.methods.gradient import Gradient
 from margtrack.sim import SensorErrors, limb_swing, random_motion, simulate, vertical_tilt
 
 Array = NDArray[np.float64]

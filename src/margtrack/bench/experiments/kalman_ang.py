@@ -21,16 +21,16 @@ from margtrack import frames, sim
 from margtrack import quaternion as quat
 from margtrack.bench.experiments import ExperimentResult
 from margtrack.bench.metrics import error_series, summarize
-from margtrack.estimators.all_accelerometer import (
+from margtrack.estimator import initial_orientation
+from margtrack.methods.bias_kf import BiasKalman, BiasKalmanParams, track_all_accelerometer
+from margtrack.methods.bias_kf.kernel import fill_triad_cov
+from margtrack.sim import all_accelerometer as aa
+from margtrack.single_frame.all_accelerometer import (
     all_accelerometer_noise,
     angular_velocity,
     gravity_estimate,
 )
-from margtrack.estimators.base import initial_orientation
-from margtrack.estimators.triad import Triad
-from margtrack.filters.bias_kf import BiasKalman, BiasKalmanParams, track_all_accelerometer
-from margtrack.kernels.bias_kf import fill_triad_cov
-from margtrack.sim import all_accelerometer as aa
+from margtrack.single_frame.triad import Triad
 
 __all__ = ["EXPERIMENTS", "all_accelerometer", "bias_recovery"]
 

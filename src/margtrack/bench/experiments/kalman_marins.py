@@ -28,7 +28,7 @@ from margtrack import sim
 from margtrack.bench.experiments import ExperimentResult
 from margtrack.bench.metrics import error_series, summarize
 from margtrack.bench.speed import measure
-from margtrack.filters.ekf import MarinsEkf, MarinsEkfParams
+from margtrack.methods.ekf import MarinsEkf, MarinsEkfParams
 
 __all__ = ["EXPERIMENTS", "approach_cost", "convergence", "convergence_run"]
 

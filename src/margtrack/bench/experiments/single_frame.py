@@ -24,13 +24,13 @@ import numpy as np
 from margtrack import frames, sim
 from margtrack import quaternion as quat
 from margtrack.bench.experiments import ExperimentResult
-from margtrack.estimators.davenport import Davenport
-from margtrack.estimators.fqa import Fqa
-from margtrack.estimators.gauss_newton import GaussNewton, Newton
-from margtrack.estimators.quest import Quest
-from margtrack.estimators.triad import Triad
-from margtrack.kernels.gauss_newton import gauss_newton_solve, newton_solve
 from margtrack.recording import Recording
+from margtrack.single_frame.davenport import Davenport
+from margtrack.single_frame.fqa import Fqa
+from margtrack.single_frame.gauss_newton import GaussNewton, Newton
+from margtrack.single_frame.gauss_newton_kernel import gauss_newton_solve, newton_solve
+from margtrack.single_frame.quest import Quest
+from margtrack.single_frame.triad import Triad
 
 __all__ = ["ESTIMATORS", "EXPERIMENTS", "speed_table"]
 

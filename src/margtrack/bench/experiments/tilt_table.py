@@ -9,7 +9,7 @@
   low-passed, "either algorithm can be used to track the orientation" (Fig. 6). Every
   case runs FQA and QUEST on the same samples: raw, the accelerometer alone low-passed at
   5 Hz, both signals low-passed at 5 Hz and at 2 Hz (the module's prefilter, a 2nd-order
-  Butterworth, :mod:`margtrack.estimators.prefilter`). Filtering both keeps the two
+  Butterworth, :mod:`margtrack.single_frame.prefilter`). Filtering both keeps the two
   vectors in step; filtering one delays it against the other during the turn.
 - ``ekf-hand-rotations`` (001 5.3, Figs. 9-10): "first rotated 90 degrees about the x axis,
   followed by a 90 degree rotation about the y axis, and finally rotated 90 degrees about
@@ -30,11 +30,11 @@ from margtrack import quaternion as quat
 from margtrack import sim
 from margtrack.bench.experiments import ExperimentResult
 from margtrack.bench.experiments.single_frame import _figure
-from margtrack.estimators.fqa import Fqa
-from margtrack.estimators.quest import Quest
-from margtrack.filters.ekf import MarinsEkf
+from margtrack.methods.ekf import MarinsEkf
 from margtrack.recording import Recording
 from margtrack.sim.trajectories import Hold, Rotate, rotation_sequence
+from margtrack.single_frame.fqa import Fqa
+from margtrack.single_frame.quest import Quest
 
 __all__ = ["EXPERIMENTS", "hand_rotations", "lowpass_tracking", "tilt_table_recording"]
 
