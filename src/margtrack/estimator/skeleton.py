@@ -240,9 +240,10 @@ def entry_points(module_name):
 
     The module provides ``_start``, ``_step``, ``_hold`` over one row (this module's
     docstring; ``_start_given`` too if a start at an orientation given whole,
-    ``reset(q0)``, differs from one measured), ``N_ROW`` and ``N_X`` (values per sample ``run`` writes); ``lanes`` (None
-    otherwise) when it also provides them strided (``_start_at``, ``_step_at``,
-    ``_hold_at``, ``_rare_at``: ``contract_lanes``) and ``N_COEF``. ``run`` and ``lanes`` run
+    ``reset(q0)``, differs from one measured), ``N_ROW`` and ``N_X`` (values per sample
+    ``run`` writes); ``lanes`` (None otherwise) when it also provides them strided
+    (``_start_at``, ``_step_at``, ``_hold_at``, ``_rare_at``: ``estimator/lockstep.py``) and
+    ``N_COEF``. ``run`` and ``lanes`` run
     on a clock already read (:func:`clock_series`), release the GIL (threads share the
     sensors) and count no references (``_nrt=False``: a dozen atomic calls a sample
     otherwise); ``lanes`` also compiles float division without its zero check
