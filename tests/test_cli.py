@@ -84,7 +84,7 @@ def test_errors_are_one_line_with_exit_code_2(tmp_path):
     assert "unknown method 'nope'" in result.output
     result = runner.invoke(app, ["evaluate", str(rec_path), "-m", "gyro", "-p", "gain=2"])
     assert result.exit_code == 2
-    assert "unknown parameter(s) gain" in result.output
+    assert "unknown parameter 'gain'" in result.output
     result = runner.invoke(app, ["simulate", "-o", str(tmp_path / "x.txt")])
     assert result.exit_code == 2
     assert "unsupported extension '.txt'" in result.output

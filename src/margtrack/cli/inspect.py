@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Annotated
 
@@ -42,7 +43,7 @@ def methods(
         table.add_column("what")
         for method in registry.available():
             cls = registry.get(method)
-            doc = (cls.__doc__ or "").strip().splitlines()[0].replace("``", "")
+            doc = description(cls, first_line=True)
             star = " [green](default)[/]" if method == registry.DEFAULT_METHOD else ""
             table.add_row(method + star, doc)
         _print_whole(table)
@@ -52,8 +53,8 @@ def methods(
     shared = {spec.name for spec in specs(Params)}
     own = [s for s in specs(cls.params_type) if s.name not in shared]
     base = [s for s in specs(cls.params_type) if s.name in shared]
-    what = (cls.__doc__ or "").strip().splitlines()[0].replace("``", "")
-    for title, rows in ((f"{cls.name}: {what}", own),
+    console.print(f"{cls.name}: {escape(description(cls))}", soft_wrap=True)
+    for title, rows in ((f"{cls.name}'s own parameters", own),
                         ("input policy and frame (every method)", base)):
         if not rows:
             console.print(f"{title}\n  (no parameters of its own)")
@@ -69,6 +70,25 @@ def methods(
         _print_whole(table)
     console.print(f"set one with -p NAME=VALUE (e.g. margtrack run REC -o OUT -m {cls.name} "
                   f"-p {(own or base)[0].name}=...). {PAPERS_NOTE}", soft_wrap=True)
+
+
+def _paragraph(doc: str | None, first_line: bool) -> str:
+    """The first paragraph (or line) of a docstring on one line, without reST markup."""
+    first = (doc or "").strip().split("\n\n")[0]
+    lines = first.splitlines()[:1] if first_line else first.splitlines()
+    text = " ".join(line.strip() for line in lines)
+    return re.sub(r":\w+:`~?([^`]+)`", r"\1", text).replace("``", "")
+
+
+def description(cls: type, first_line: bool = False) -> str:
+    """What a method is, in one paragraph (or its first line): its class docstring's, or
+    its module's where the class defers to that ("see the module docstring")."""
+    import sys
+
+    text = _paragraph(cls.__doc__, first_line)
+    if "module docstring" in text:
+        text = _paragraph(sys.modules[cls.__module__].__doc__, first_line)
+    return text
 
 
 #: where the paper numbers of the help texts ("000 eq. 5") are resolved
