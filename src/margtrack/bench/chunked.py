@@ -156,11 +156,12 @@ def _unit_fix(signal: str, suspected: str) -> str:
 
 def _check_units(rec: Recording, source: str, start: int = 0) -> None:
     try:
-        check_unit_magnitudes(rec.gyr, rec.acc, fix=_unit_fix)
+        check_unit_magnitudes(rec.gyr, rec.acc, fix=_unit_fix, t_s=rec.t)
     except UnitError as exc:
         where = f" (in the chunk from sample {start}; sample numbers count from there)"
         raise UnitError(
-            f"{source}: {exc}{where if start else ''}", signal=exc.signal, suspected=exc.suspected
+            f"{source}: {exc}{where if start else ''}", signal=exc.signal,
+            suspected=exc.suspected, fix=exc.fix,
         ) from None
 
 

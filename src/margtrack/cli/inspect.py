@@ -136,16 +136,19 @@ def info(
             path, **read_options(gyr_unit, acc_unit, mag_unit, time_unit, column, profile)
         )
     for rec in recordings:
+        time_note = ""
         try:
             check_units(rec, path if len(recordings) == 1 else f"{path} [{rec.name}]")
         except UnitError as exc:  # info describes the file anyway; run and evaluate refuse it
             err_console.print(f"[yellow]warning:[/] {escape(str(exc))}", soft_wrap=True)
-        table = Table(title=f"{rec.name or path.name}", show_header=False)
+            if exc.signal == "time":
+                time_note = f"; timestamps probably in {exc.suspected}: --time-unit {exc.suspected}"
+        table = Table(title=escape(f"{rec.name or path.name}"), show_header=False)
         table.add_column("field")
         table.add_column("value")
         gaps = rec.gaps()
         table.add_row("samples", f"{rec.n_samples}")
-        table.add_row("rate", f"{rec.rate_hz:.3f} Hz (median interval)")
+        table.add_row("rate", f"{rec.rate_hz:.3f} Hz (median interval{time_note})")
         table.add_row("duration", f"{rec.duration_s:.3f} s")
         table.add_row("signals", "gyr rad/s, acc m/s²" + (", mag" if rec.mag is not None else ""))
         if rec.mag is not None:
@@ -178,8 +181,8 @@ def info(
                 truth += f", movement {100 * np.mean(rec.movement):.1f} % of samples"
         table.add_row("truth", truth)
         for key, value in rec.meta.items():
-            if key != "info":
-                table.add_row(key, str(value))
+            if key != "info":  # values hold file names and units: "[deg/s]" is not markup
+                table.add_row(escape(key), escape(str(value)))
         console.print(table)
 
 

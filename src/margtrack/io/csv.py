@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from margtrack.errors import InputError
 from margtrack.frames import check_frame
 from margtrack.io.estimate_csv import (
     CSV_BLOCK_ROWS,
@@ -239,9 +240,11 @@ def read_csv(
             from margtrack.io.csv_layout import mapping_hint, sniff
 
             header = sniff(p, delimiter, decimal).header
-            raise ValueError(
+            hint = mapping_hint(header)
+            raise InputError(
                 f"{p} is not a margtrack CSV (its first line is not '{MAGIC} ...'); "
-                f"{mapping_hint(header)}; the file has columns {header}"
+                f"the file has columns {header}; {hint.python}",
+                fix=hint.python, cli_fix=hint.cli,
             )
         given = {"gyr_unit": (gyr_unit, "rad/s"), "acc_unit": (acc_unit, "m/s2"),
                  "time_unit": (time_unit, "s"), "mag_unit": (mag_unit, None),
@@ -290,9 +293,10 @@ def _read_mapped(
         values, lines, dropped = read_table(table, names)
     except KeyError as exc:
         good = {k: v for k, v in mapping.items() if all(c in table.header for c in v)}
-        raise ValueError(
+        hint = mapping_hint(table.header, good)
+        raise InputError(
             f"{path}: no column {exc.args[0]!r}; the file has columns {table.header}; "
-            + mapping_hint(table.header, good)
+            + hint.python, fix=hint.python, cli_fix=hint.cli,
         ) from None
     data: dict[str, NDArray[np.float64]] = {}
     start = 0
