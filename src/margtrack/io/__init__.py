@@ -162,7 +162,8 @@ def read(
     layout = {"delimiter": delimiter, "decimal": decimal}
     if not isinstance(path, str | Path):
         if columns is not None:
-            raise ValueError("columns= maps one table; per-sensor files are mapped by name")
+            raise InputError("columns= maps one table; per-sensor files are mapped by name",
+                             fix="columns=", cli_fix="--column")
         from margtrack.io.phone import read_sensor_files
 
         return read_sensor_files(path, **given, **layout, **kw)

@@ -172,9 +172,10 @@ def _read_margtrack(path: Path, comments: list[str], header: list[str], skip: in
     known = [c for cols in _FIELD_COLUMNS.values() for c in cols]
     extra = [c for c in header if c not in known]
     if extra:
-        raise ValueError(
-            f"{path}: unexpected columns {extra} in a margtrack CSV; "
-            "read it with read_csv(path, columns={...}) to choose columns"
+        fix = "read it with read_csv(path, columns={...}) to choose columns"
+        raise InputError(
+            f"{path}: unexpected columns {extra} in a margtrack CSV; {fix}", fix=fix,
+            cli_fix="choose its columns with --column KEY=NAME[,NAME,NAME]",
         )
     wanted = {
         field: cols for field, cols in _FIELD_COLUMNS.items()
@@ -283,9 +284,12 @@ def _read_mapped(
     if "t" in mapping and rate_hz is not None:
         raise ValueError("give either a time column (columns['t']) or rate_hz, not both")
     if "t" not in mapping and rate_hz is None:
-        raise ValueError(
-            f"{path}: no time column mapped; map one (--column t=NAME, or columns={{'t': "
-            "NAME, ...}}) or give the sampling rate in Hz (rate_hz=...; no rate is assumed)"
+        fix = ("map one (columns={'t': NAME, ...}) or give the sampling rate in Hz "
+               "(rate_hz=...; no rate is assumed)")
+        raise InputError(
+            f"{path}: no time column mapped; {fix}", fix=fix,
+            cli_fix="map one with --column t=NAME, or give the sampling rate in an import "
+            "profile (rate_hz = ... with --profile; no rate is assumed)",
         )
     table = sniff(path, delimiter, decimal)
     names = [c for cols in mapping.values() for c in cols]
