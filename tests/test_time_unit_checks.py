@@ -17,7 +17,7 @@ from margtrack.live.engine import Engine
 from margtrack.live.lines import LineDecoder, format_line
 from margtrack.live.protocol import SourceStats
 from margtrack.live.udp import UdpSource, send_lines
-from margtrack.units import UnitError, check_unit_magnitudes, suspected_time_unit
+from margtrack.units import UnitError, check_unit_magnitudes
 
 
 @pytest.fixture(scope="module")
@@ -31,6 +31,8 @@ def _arrays(r):
 
 
 def test_the_suspected_unit_is_the_one_giving_a_sensor_rate():
+    from margtrack.units import suspected_time_unit
+
     assert suspected_time_unit(10.0) == ("ms", pytest.approx(100.0))  # 100 Hz in ms
     assert suspected_time_unit(20_000.0) == ("us", pytest.approx(50.0))  # x-IMU3's µs
     assert suspected_time_unit(2.5e6)[0] == "ns"  # 400 Hz in ns

@@ -6,13 +6,10 @@ import numpy as np
 
 from margtrack.estimator.flags import (
     DATA_FLAGS,
-    FAULT_FLAGS,
-    STATE_FLAGS,
     Flag,
     count_flags,
     describe,
     first_problem,
-    percent,
     summary,
 )
 
@@ -52,6 +49,8 @@ def test_summary_counts_rest_and_initialising_as_states_not_faults():
         "INITIALISING 3 (1.5 %, first at sample 0)"
     )
     flags[60] |= Flag.MAG_DISTURBED
+    from margtrack.estimator.flags import FAULT_FLAGS, STATE_FLAGS
+
     assert summary(flags).startswith(
         "faults: 1 of 200 samples (0.5 %): MAG_DISTURBED 1 (first at sample 60); states: REST 70"
     )
@@ -63,6 +62,8 @@ def test_summary_share_reads_100_not_1e2():
     flags = np.full(3001, Flag.GAP, dtype=np.uint16)
     flags[0] = 0
     assert summary(flags) == "faults: 3000 of 3001 samples (100 %): GAP 3000 (first at sample 1)"
+    from margtrack.estimator.flags import percent
+
     assert [percent(x) for x in (99.97, 35.08, 0.19, 0.004)] == ["100", "35", "0.19", "<0.01"]
 
 
