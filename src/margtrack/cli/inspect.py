@@ -210,7 +210,7 @@ def _estimate_info(path: Path) -> None:
     if est.flags is None:
         table.add_row("flags", "none stored")
     else:
-        table.add_row("flags", summary(est.flags).removeprefix("flags: "))
+        table.add_row("flags", summary(est.flags))
         counts = count_flags(est.flags)
         for name, n in counts.items():
             table.add_row(f"  {name}", f"{n} samples ({100.0 * n / est.n_samples:.2f} %)")
