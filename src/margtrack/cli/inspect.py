@@ -11,7 +11,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from margtrack.cli.app import app, console, err_console, friendly_errors
+from margtrack.cli.app import app, cli_message, console, err_console, friendly_errors
 from margtrack.cli.options import (
     AccUnitOption,
     ColumnOption,
@@ -140,7 +140,7 @@ def info(
         try:
             check_units(rec, path if len(recordings) == 1 else f"{path} [{rec.name}]")
         except UnitError as exc:  # info describes the file anyway; run and evaluate refuse it
-            err_console.print(f"[yellow]warning:[/] {escape(str(exc))}", soft_wrap=True)
+            err_console.print(f"[yellow]warning:[/] {escape(cli_message(exc))}", soft_wrap=True)
             if exc.signal == "time":
                 time_note = f"; timestamps probably in {exc.suspected}: --time-unit {exc.suspected}"
         table = Table(title=escape(f"{rec.name or path.name}"), show_header=False)
