@@ -195,7 +195,7 @@ def test_time_words_of_the_usual_languages_with_their_units(name, unit):
 
 # -- 4. command-line messages name commands and options ----------------------------------
 _PYTHON = re.compile(r"\b[a-z_][a-z_.]*\((path|r'|\)|\.\.\.|[a-z_]+=)|margtrack\.io\.|"
-                     r"read_kwargs|check_units=")
+                     r"read_kwargs|check_units=|in Python")
 
 
 def _refused(*args) -> str:
@@ -214,6 +214,7 @@ def test_cli_errors_name_commands_not_python_functions(xio_folder, broad_folder,
     assert f"margtrack run {xio_folder}/<sensor> -o OUT.h5" in text
     estimate = tmp_path / "est.h5"
     assert _invoke("run", sim_file, "-o", estimate).exit_code == 0
+    assert "pass --force to replace it" in _refused("run", sim_file, "-o", estimate)
     for command in ("evaluate", "run"):
         args = (command, estimate) + (("-o", out) if command == "run" else ())
         text = _refused(*args)

@@ -13,7 +13,11 @@ option (``--time-unit ms``).
 
 from __future__ import annotations
 
-__all__ = ["InputError", "NoRecordingError"]
+from typing import TypeVar
+
+__all__ = ["InputError", "NoRecordingError", "with_cli_fix"]
+
+X = TypeVar("X", bound=BaseException)
 
 
 class InputError(ValueError):
@@ -35,3 +39,11 @@ class InputError(ValueError):
 class NoRecordingError(InputError):
     """A path that holds no recording margtrack reads (an empty folder, a folder of several
     recordings): a command that takes folders of its own kind says what they must hold."""
+
+
+def with_cli_fix(exc: X, fix: str, cli_fix: str) -> X:
+    """``exc`` (of any type: a ``FileExistsError`` stays one) carrying the two spellings of
+    its fix as :class:`InputError` does."""
+    exc.fix = fix  # type: ignore[attr-defined]
+    exc.cli_fix = cli_fix  # type: ignore[attr-defined]
+    return exc
