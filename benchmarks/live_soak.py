@@ -80,7 +80,7 @@ def soak(seconds: float) -> bool:
     print(f"engine: error {summary['engine']['error']}, frames {summary['engine']['frames']}, "
           f"session {summary['engine']['session_s']:.2f} s, malformed lines "
           f"{summary['engine']['malformed_lines']}")
-    print(" sensor   sent  recv  proc  lost  held  late  bad_t  resync  stale_s  flagged  reinit")
+    print(" sensor   sent  recv  proc  lost  held  late  bad_t  resync  stale_s   faults  reinit")
     whole = True
     for s, name in enumerate(names):
         c = summary["sensors"][name]
@@ -88,7 +88,7 @@ def soak(seconds: float) -> bool:
         mark = "*" if s in stream.affected else " "
         print(f" {name:>4}{mark} {sent:6d} {c['received']:5d} {c['processed']:5d} {c['lost']:5d} "
               f"{c['held']:5d} {c['late']:5d} {c['bad_time']:6d} {c['resyncs']:7d} "
-              f"{c['stale_s']:8.2f} {c['flagged']:8d} {c['reinitialised']:7d}")
+              f"{c['stale_s']:8.2f} {c['faults']:8d} {c['reinitialised']:7d}")
         if s not in stream.affected and c["processed"] != sent:
             whole = False
     lat = np.asarray(latency)

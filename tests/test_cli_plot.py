@@ -81,7 +81,7 @@ def test_plot_of_an_estimate_with_truth_prints_the_run_figures(files):
     assert (f"total {oracle.total_rmse_deg:.2f} deg, heading {oracle.heading_rmse_deg:.2f} deg, "
             f"inclination {oracle.inclination_rmse_deg:.2f} deg") in text
     assert "gyroscope bias" in text and "error against the truth" in text
-    assert "flags: none of 501" in " ".join(text.split())
+    assert "faults: 0 of 501" in " ".join(text.split())
 
 
 def test_plot_function_reports_rmse_and_panels(files, tmp_path):

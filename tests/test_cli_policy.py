@@ -45,7 +45,7 @@ def test_run_reports_gaps_and_clipped_rates_and_writes_the_flags(broken_file, tm
     out = tmp_path / "est.h5"
     result = _invoke(["run", broken_file, "-o", out])
     assert result.exit_code == 0, result.output
-    assert "flags: 2 of 2501 samples" in result.output
+    assert "faults: 2 of 2501 samples" in result.output
     assert "GAP 1 (first at sample 1500)" in result.output
     assert "GYR_CLIPPED 1 (first at sample 500)" in result.output
     with h5py.File(out) as f:

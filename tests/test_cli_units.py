@@ -107,9 +107,12 @@ def test_time_unit_ms_on_csv(files, tmp_path: Path) -> None:
     with h5py.File(tmp_path / "si.h5") as a, h5py.File(tmp_path / "ms.h5") as b:
         np.testing.assert_allclose(b["t"][()], a["t"][()], rtol=1e-15, atol=0)
         np.testing.assert_allclose(b["quat"][()], a["quat"][()], rtol=0, atol=1e-9)
-    # undeclared, the 1000-times-longer intervals integrate the rates 1000 times over
-    _ok("run", files["ms.csv"], "-o", tmp_path / "raw.h5")
-    assert np.max(np.abs(_quat(tmp_path / "raw.h5") - _quat(tmp_path / "si.h5"))) > 0.1
+    # undeclared, the 1000-times-longer intervals are refused with the option (issue 40; it
+    # ran with every interval a gap)
+    result = _invoke("run", files["ms.csv"], "-o", tmp_path / "raw.h5")
+    assert result.exit_code == 2 and "declare the file's unit with --time-unit ms" in " ".join(
+        result.output.split())
+    assert not (tmp_path / "raw.h5").exists()
 
 
 def test_mag_unit_nt_reads_back_in_microtesla(files, truth, tmp_path: Path) -> None:

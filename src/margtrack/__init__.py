@@ -10,7 +10,10 @@ The public API, re-exported here:
 - :func:`create` / :func:`available_methods` (:mod:`margtrack.methods`, one folder per
   method; :mod:`margtrack.single_frame`): estimators by name, all following one contract
   (:class:`Estimator`, :class:`Estimate`);
-- :func:`error_series`, :func:`summarize` (:mod:`margtrack.bench.metrics`): errors in degrees.
+- :func:`score` (:func:`margtrack.bench.runner.score_estimate`): an estimate's error
+  against its recording's truth as ``margtrack evaluate`` reports it (RMSE in degrees over
+  the movement samples); :func:`error_series`, :func:`summarize`
+  (:mod:`margtrack.bench.metrics`): the errors per sample and their RMSE over any mask.
 
 Submodules that pull in numba or h5py load on first use, so ``import margtrack`` is quick.
 """
@@ -26,6 +29,7 @@ from margtrack.recording import Recording, resample
 if TYPE_CHECKING:  # pragma: no cover
     from margtrack import bench, body, calibration, io, live, methods, sim, single_frame
     from margtrack.bench.metrics import error_series, summarize
+    from margtrack.bench.runner import score_estimate as score
     from margtrack.estimator import Estimate, Estimator
     from margtrack.methods import available as available_methods
     from margtrack.methods import create
@@ -48,6 +52,7 @@ _LAZY_NAMES = {
     "available_methods": ("margtrack.methods", "available"),
     "create": ("margtrack.methods", "create"),
     "error_series": ("margtrack.bench.metrics", "error_series"),
+    "score": ("margtrack.bench.runner", "score_estimate"),
     "summarize": ("margtrack.bench.metrics", "summarize"),
 }
 
@@ -67,6 +72,7 @@ __all__ = [
     "methods",
     "quaternion",
     "resample",
+    "score",
     "sim",
     "single_frame",
     "summarize",

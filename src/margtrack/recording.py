@@ -213,15 +213,17 @@ class Recording:
         rate_hz: float | None = None,
         gyr_unit: str = "rad/s",
         acc_unit: str = "m/s2",
+        time_unit: str = "s",
         check_units: bool = True,
         **fields: Any,
     ) -> Recording:
         """Build a Recording from arrays in any supported unit.
 
-        Give either timestamps ``t`` (s) or a constant ``rate_hz``; there is no default
-        rate. ``gyr_unit`` is "rad/s" or "deg/s", ``acc_unit`` "m/s2" or "g"; values are
-        converted to SI. With ``check_units`` (default) data whose magnitudes look like
-        deg/s or g is refused with the fix in the message. Other keyword arguments
+        Give either timestamps ``t`` (in ``time_unit``: "s", "ms", "us", "ns") or a
+        constant ``rate_hz``; there is no default rate. ``gyr_unit`` is "rad/s" or "deg/s",
+        ``acc_unit`` "m/s2" or "g"; values are converted to SI. With ``check_units``
+        (default) data whose magnitudes look like deg/s or g, or timestamps like ms read
+        as s, is refused with the fix in the message. Other keyword arguments
         (``quat_true``, ``movement``, ``frame``, ``name``, ``meta``) go to the constructor.
         """
         gyr_factor, acc_factor = unit_factor("gyr", gyr_unit), unit_factor("acc", acc_unit)
@@ -236,8 +238,13 @@ class Recording:
             if not (rate_hz is not None and np.isfinite(rate_hz) and rate_hz > 0):
                 raise ValueError(f"rate_hz must be a finite number > 0, got {rate_hz}")
             t = np.arange(n) / float(rate_hz)
+            checked_t = None  # a rate is a declaration, not timestamps to judge
+        else:
+            t = checked_t = convert_unit(t, "time", time_unit)
         if check_units:
-            check_unit_magnitudes(gyr_arr, acc_arr, fix=unit_fix_keyword("from_arrays"))
+            check_unit_magnitudes(
+                gyr_arr, acc_arr, fix=unit_fix_keyword("from_arrays"), t_s=checked_t
+            )
         return cls(t=t, gyr=gyr_arr, acc=acc_arr, mag=mag, **fields)
 
     @property

@@ -177,18 +177,20 @@ def parse_params_items(items: Iterable[str]) -> dict[str, str]:
 def parse_params(params_type: type[Params], items: Iterable[str] | Mapping[str, Any]) -> Params:
     """Build ``params_type`` from ``name=value`` strings (CLI) or a mapping, coercing types.
 
-    Unknown names raise ``ValueError`` listing the valid ones; values are validated by the
-    dataclass itself.
+    An unknown name raises ``ValueError`` with the closest valid names ("did you mean
+    tau_acc_s?", as a mistyped command gets), or the valid names when none is close;
+    values are validated by the dataclass itself.
     """
+    import difflib
+
     pairs = dict(items) if isinstance(items, Mapping) else parse_params_items(items)
     hints = typing.get_type_hints(params_type)
-    fields = {f.name for f in dataclasses.fields(params_type)}
-    unknown = sorted(set(pairs) - fields)
-    if unknown:
-        raise ValueError(
-            f"unknown parameter(s) {', '.join(unknown)} for {params_type.__name__}; "
-            f"valid: {', '.join(sorted(fields))}"
-        )
+    fields = sorted(f.name for f in dataclasses.fields(params_type))
+    for name in sorted(set(pairs) - set(fields)):
+        close = difflib.get_close_matches(name, fields, n=1, cutoff=0.6)
+        if close:
+            raise ValueError(f"unknown parameter {name!r}; did you mean {close[0]}?")
+        raise ValueError(f"unknown parameter {name!r}; the parameters are {', '.join(fields)}")
     values = {k: _coerce(v, hints[k], k) for k, v in pairs.items()}
     return params_type(**values)
 

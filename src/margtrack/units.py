@@ -2,12 +2,15 @@
 
 Inside margtrack: rad/s, m/s², µT (the field may be any unit) and s. A signal declared in
 another unit is converted with :func:`convert_unit`; :func:`check_unit_magnitudes`
-refuses data whose magnitudes betray a unit mix-up (gyr in deg/s, acc in g) with a
-:class:`UnitError` whose message names the fix on the caller's path.
+refuses data whose magnitudes betray a unit mix-up (gyr in deg/s, acc in g, timestamps in
+ms, µs or ns read as s) with a :class:`UnitError` whose message names the fix on the
+caller's path; :class:`IntervalProbe` applies the timestamp rule to a stream, sample by
+sample.
 """
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Callable, Mapping
 
@@ -25,6 +28,7 @@ __all__ = [
     "SI_UNITS",
     "TIME_UNITS",
     "UNITS",
+    "IntervalProbe",
     "UnitError",
     "check_unit_magnitudes",
     "convert_unit",
@@ -53,6 +57,16 @@ SI_UNITS: Mapping[str, str] = {"gyr": "rad/s", "acc": "m/s2", "mag": "uT", "time
 _GYR_RAD_S_IMPLAUSIBLE = 40.0
 # A recording's median acceleration norm is about 9.8 in m/s²; between these bounds it is in g.
 _ACC_G_LIKELY = (0.5, 2.0)
+# A median sample interval of this many s or more, on a recording whose gyroscope turns, is no
+# MARG sensor's (they sample at 10 Hz to a few kHz): timestamps in ms, µs or ns read as s.
+_INTERVAL_S_IMPLAUSIBLE = 1.0
+# A rate above this (rad/s, 11.5 deg/s) is motion, beyond any gyroscope's bias and noise at
+# rest; a few such samples (a spike or two is a glitch) show that the sensor turns.
+_GYR_MOTION_RAD_S = 0.2
+_MOTION_HITS = 3
+# Of ms, us and ns, the timestamps are suspected in the one giving the rate nearest this
+# (on a log scale: 1000 s-units apart are 10 Hz in ms or 10 kHz in us).
+_TYPICAL_RATE_HZ = 100.0
 
 
 def unit_factor(signal: str, unit: str) -> float:
@@ -87,18 +101,27 @@ def convert_unit(values: ArrayLike, signal: str, unit: str) -> Array:
 
 
 class UnitError(ValueError):
-    """Magnitudes that betray a unit mix-up: gyr in deg/s or acc in g.
+    """Magnitudes that betray a unit mix-up: gyr in deg/s, acc in g, time in ms (µs, ns).
 
     Attributes
     ----------
-    signal : "gyr" or "acc".
-    suspected : the unit the data is probably in, "deg/s" or "g".
+    signal : "gyr", "acc" or "time".
+    suspected : the unit the data is probably in, "deg/s", "g", "ms", "us" or "ns".
+    fix : the sentence of the message that says how to declare the unit on the caller's
+        path ("" if none): a front end on another path (the command line) replaces it
+        with its own (``--time-unit ms``) in the message, prefixes and all.
     """
 
-    def __init__(self, message: str, *, signal: str, suspected: str) -> None:
+    def __init__(self, message: str, *, signal: str, suspected: str, fix: str = "") -> None:
         super().__init__(message)
         self.signal = signal
         self.suspected = suspected
+        self.fix = fix
+
+    def prefixed(self, prefix: str) -> UnitError:
+        """The same error with ``prefix`` (a file, a sensor) in front of its message."""
+        return UnitError(f"{prefix}{self}", signal=self.signal, suspected=self.suspected,
+                         fix=self.fix)
 
 
 def unit_fix_api(signal: str, suspected: str) -> str:
@@ -136,9 +159,13 @@ def _gyr_hits_needed(n: int) -> int:
 
 
 def check_unit_magnitudes(
-    gyr_rad_s: Array, acc_m_s2: Array, *, fix: Callable[[str, str], str] | None = None
+    gyr_rad_s: Array,
+    acc_m_s2: Array,
+    *,
+    fix: Callable[[str, str], str] | None = None,
+    t_s: ArrayLike | None = None,
 ) -> None:
-    """Raise :class:`UnitError` if gyr looks like deg/s or acc looks like g.
+    """Raise :class:`UnitError` if gyr looks like deg/s, acc like g or t like ms (µs, ns).
 
     Parameters
     ----------
@@ -150,11 +177,15 @@ def check_unit_magnitudes(
         Refused if its median norm lies between 0.5 and 2 (about 1 g rather than 9.81 m/s²).
     fix : ``fix(signal, suspected)`` returns the sentence telling the caller how to declare
         the unit on its own path (an option, a keyword); default :func:`unit_fix_api`.
+    t_s : (N,) the timestamps that should be s, shared by the sensors (None: not checked).
+        Refused if their median interval is 1 s or more while the gyroscope turns (3
+        samples beyond 0.2 rad/s): no MARG sensor samples that slowly, the timestamps are
+        ms (µs, ns) read as s. Without a gyroscope there is no evidence of motion.
 
-    The message names the offending sample (gyr) or the median norm (acc), the sensor when
-    there are several, the suspected unit and the fix. Non-finite samples are left out (a
-    sensor with no finite sample is no evidence). The sensors are checked together (a few
-    numpy passes, no loop over them).
+    The message names the offending sample (gyr, t) or the median norm (acc), the sensor
+    when there are several, the suspected unit and the fix. Non-finite samples are left out
+    (a sensor with no finite sample is no evidence). The sensors are checked together (a
+    few numpy passes, no loop over them).
     """
     fix = unit_fix_api if fix is None else fix
     gyr = np.asarray(gyr_rad_s, dtype=np.float64)
@@ -163,6 +194,8 @@ def check_unit_magnitudes(
         _check_gyr(gyr.reshape(-1, *gyr.shape[-2:]), gyr.ndim > 2, fix)
     if acc.size:
         _check_acc(acc.reshape(-1, *acc.shape[-2:]), acc.ndim > 2, fix)
+    if t_s is not None and gyr.size:
+        _check_time(np.asarray(t_s, dtype=np.float64), gyr.reshape(-1, *gyr.shape[-2:]), fix)
 
 
 def _sensor(s: int, several: bool) -> str:
@@ -187,12 +220,13 @@ def _check_gyr(gyr: Array, several: bool, fix: Callable[[str, str], str]) -> Non
         peak = float(magnitude.max())
         i = int(np.argwhere(magnitude == peak)[0][0])
         hits = np.flatnonzero(over[s])
+        fix_text = fix("gyr", "deg/s")
         raise UnitError(
             f"{_sensor(s, several)}gyr reaches {peak:.1f} rad/s at sample {i} and exceeds "
             f"{_GYR_RAD_S_IMPLAUSIBLE:g} rad/s on {hits.size} of {gyr.shape[1]} samples "
             f"(first at sample {int(hits[0])}), more than any MEMS gyroscope measures; "
-            f"the data is probably in deg/s: {fix('gyr', 'deg/s')}",
-            signal="gyr", suspected="deg/s",
+            f"the data is probably in deg/s: {fix_text}",
+            signal="gyr", suspected="deg/s", fix=fix_text,
         )
 
 
@@ -213,8 +247,130 @@ def _check_acc(acc: Array, several: bool, fix: Callable[[str, str], str]) -> Non
     bad = np.flatnonzero((_ACC_G_LIKELY[0] < medians) & (medians < _ACC_G_LIKELY[1]))
     if bad.size:
         s = int(bad[0])
+        fix_text = fix("acc", "g")
         raise UnitError(
             f"{_sensor(s, several)}acc has a median norm of {medians[s]:.3f}, about 1 g rather "
-            f"than 9.81 m/s²; the data is probably in g: {fix('acc', 'g')}",
-            signal="acc", suspected="g",
+            f"than 9.81 m/s²; the data is probably in g: {fix_text}",
+            signal="acc", suspected="g", fix=fix_text,
         )
+
+
+def suspected_time_unit(median_interval: float) -> tuple[str, float]:
+    """The unit timestamps advancing by ``median_interval`` per sample are probably in, of
+    ms, us and ns (the one giving the rate nearest 100 Hz), and the rate in Hz it gives."""
+    rates = {unit: 1.0 / (median_interval * TIME_UNITS[unit]) for unit in ("ms", "us", "ns")}
+    unit = min(rates, key=lambda u: abs(np.log10(rates[u] / _TYPICAL_RATE_HZ)))
+    return unit, rates[unit]
+
+
+def _hz(rate: float) -> str:
+    return f"{rate:.3g} Hz"
+
+
+def time_unit_error(
+    median_interval: float,
+    lead: str,
+    gyr_peak: float,
+    where_gyr: str,
+    fix_of: Callable[[str, str], str],
+    detail: str = "",
+) -> UnitError:
+    """The :class:`UnitError` of timestamps advancing by ``median_interval`` (s-units) per
+    sample while the gyroscope turns: ``lead`` says so ("t advances by a median of 10 s per
+    sample"; ``detail`` adds to the rate in parentheses), ``gyr_peak`` rad/s ``where_gyr``
+    ("at sample 12") is where it turns."""
+    unit, rate = suspected_time_unit(median_interval)
+    fix = fix_of("time", unit)
+    return UnitError(
+        f"{lead} ({_hz(1 / median_interval)}{detail}) while the gyroscope turns "
+        f"({gyr_peak:.2f} rad/s {where_gyr}): no MARG sensor samples that slowly; the "
+        f"timestamps are probably in {unit} ({_hz(rate)} then): {fix}",
+        signal="time", suspected=unit, fix=fix,
+    )
+
+
+def _check_time(t: Array, gyr: Array, fix: Callable[[str, str], str]) -> None:
+    """:func:`check_unit_magnitudes` for the timestamps (N,) and the rates (S, N, 3)."""
+    n = t.shape[0]
+    if t.ndim != 1 or n < 2 or gyr.shape[1] != n:
+        return  # no interval, or shapes the caller's own checks refuse
+    # the median of up to 20,000 intervals spread over the recording
+    start = np.arange(0, n - 1, max(1, (n - 1) // 20_000))
+    steps = t[start + 1] - t[start]
+    steps = steps[np.isfinite(steps)]
+    if steps.size == 0:
+        return
+    median = float(np.median(steps))
+    if not median >= _INTERVAL_S_IMPLAUSIBLE:
+        return
+    norms = np.sqrt(np.einsum("snk,snk->sn", gyr, gyr))
+    moving = norms > _GYR_MOTION_RAD_S  # False on nan
+    hits = moving.sum(axis=1)
+    turning = np.flatnonzero(hits >= min(_MOTION_HITS, n))
+    if turning.size == 0:
+        return  # a slow log of a still sensor: no evidence
+    s = int(turning[0])
+    i = int(np.flatnonzero(moving[s])[0])
+    sensor = f" (sensor {s})" if gyr.shape[0] > 1 else ""
+    raise time_unit_error(
+        median, f"t advances by a median of {median:.6g} s per sample", float(norms[s, i]),
+        f"at sample {i}{sensor}", fix, detail=f"; t[1] - t[0] = {t[1] - t[0]:.6g}",
+    )
+
+
+class IntervalProbe:
+    """The timestamp rule of :func:`check_unit_magnitudes` on a stream, sample by sample.
+
+    :meth:`add` takes each sample's time (s-units, ``nan`` when unknown) and the largest
+    rate norm among its sensors (rad/s, ``nan`` without a gyroscope). After
+    ``N_INTERVALS`` intervals it judges their median: below 1 s it is ``done``; at 1 s or
+    more it keeps watching for motion (``_MOTION_HITS`` samples beyond 0.2 rad/s) and
+    raises the :class:`UnitError` when it sees it, until ``LIMIT`` samples.
+
+    Parameters
+    ----------
+    fix : ``fix("time", suspected)``, the sentence naming the fix on the caller's path.
+    what : how the message names the samples and their times: ``"update"`` (times from
+        ``dt``), ``"line of sensor s0"``...
+    """
+
+    N_INTERVALS = 10
+    LIMIT = 5000
+
+    def __init__(self, fix: Callable[[str, str], str], what: str = "sample") -> None:
+        self.fix = fix
+        self.what = what
+        self.count = 0
+        self.times: list[float] = []
+        self.moving = 0
+        self.first_motion: tuple[int, float] | None = None
+        self.median: float | None = None
+        self.done = False
+
+    def add(self, t: float, gyr_norm: float) -> None:
+        """Take one sample; raise :class:`UnitError` when the stream is refused."""
+        index = self.count
+        self.count += 1
+        if gyr_norm > _GYR_MOTION_RAD_S:
+            self.moving += 1
+            if self.first_motion is None:
+                self.first_motion = (index, float(gyr_norm))
+        if self.median is None:
+            if math.isfinite(t) and (not self.times or t != self.times[-1]):
+                self.times.append(float(t))
+            if len(self.times) > self.N_INTERVALS:
+                self.median = float(np.median(np.diff(self.times)))
+                self.done = not self.median >= _INTERVAL_S_IMPLAUSIBLE
+        if self.median is not None and not self.done and self.moving >= _MOTION_HITS:
+            assert self.first_motion is not None
+            at, peak = self.first_motion
+            n = self.N_INTERVALS
+            lead = (
+                f"dt has a median of {self.median:.6g} s over the first {n} intervals"
+                if self.what == "update" else
+                f"t advances by a median of {self.median:.6g} s per {self.what} over the "
+                f"first {n + 1}"
+            )
+            raise time_unit_error(self.median, lead, peak, f"at {self.what} {at}", self.fix)
+        if self.count >= self.LIMIT:
+            self.done = True

@@ -115,7 +115,7 @@ def _assert_same(result, reference) -> None:
     assert [r["status"] for r in result.rows] == ["done"] * 4 + ["failed"]
     for a, b in zip(reference.rows[:4], result.rows[:4], strict=True):
         np.testing.assert_allclose(_quats(b), _quats(a), rtol=0, atol=1e-12)
-        for key in ("samples", "gaps", "flagged_samples", "mag_ignored_pct"):
+        for key in ("samples", "gaps", "fault_samples", "rest_samples", "mag_ignored_pct"):
             assert b[key] == a[key], key
         assert b["total_rmse_deg"] == pytest.approx(a["total_rmse_deg"], rel=1e-12)
 

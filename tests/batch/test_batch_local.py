@@ -22,7 +22,7 @@ from margtrack.batch.summary import COLUMNS, read_summary_csv
 from margtrack.bench.runner import evaluate
 from margtrack.bench.tune import tune
 from margtrack.cli import app
-from margtrack.estimator.flags import Flag
+from margtrack.estimator.flags import FAULT_FLAGS, Flag
 
 runner = CliRunner()
 
@@ -73,9 +73,10 @@ def _check_against_the_runner(result, root: Path, method: str = "robust") -> Non
         assert row["total_rmse_deg"] == pytest.approx(trial.total_rmse_deg, rel=1e-9)
         assert row["heading_rmse_deg"] == pytest.approx(trial.heading_rmse_deg, rel=1e-9)
         assert row["samples"] == rec.n_samples
-        assert row["flagged_samples"] == np.count_nonzero(est.flags)
+        assert row["fault_samples"] == np.count_nonzero(est.flags & FAULT_FLAGS)
+        assert row["rest_samples"] == np.count_nonzero(est.flags & Flag.REST)
         assert row["gaps"] == np.count_nonzero(est.flags & Flag.GAP)
-    assert rows["c.h5"]["gaps"] == 1 and rows["c.h5"]["flagged_samples"] >= 1
+    assert rows["c.h5"]["gaps"] == 1 and rows["c.h5"]["fault_samples"] >= 1
     assert rows["corrupt.h5"]["status"] == "failed"
     assert "corrupt.h5" in rows["corrupt.h5"]["error"]
     assert rows["corrupt.h5"]["method"] == method  # "default" resolved

@@ -13,7 +13,7 @@ import pytest
 import margtrack as mt
 from margtrack import io, methods
 from margtrack.bench.metrics import error_series, summarize
-from margtrack.estimator.flags import Flag, summary
+from margtrack.estimator.flags import FAULT_FLAGS, Flag, summary
 from margtrack.io.chunks import open_chunks
 from margtrack.io.csv import write_estimate_csv
 from margtrack.io.estimate_writer import EstimateWriter, estimate_fields
@@ -82,7 +82,8 @@ def test_chunked_hdf5_run_equals_the_whole_run(rec, files, tmp_path, method, chu
     assert result.rate_hz == rec.rate_hz
     assert result.duration_s == rec.duration_s
     assert result.gaps == int(np.count_nonzero(whole.flags & Flag.GAP)) == 1
-    assert result.flagged_samples == int(np.count_nonzero(whole.flags))
+    assert result.fault_samples == int(np.count_nonzero(whole.flags & FAULT_FLAGS))
+    assert result.rest_samples == int(np.count_nonzero(whole.flags & Flag.REST))
     mag_off = np.count_nonzero(whole.flags & (Flag.MAG_IGNORED | Flag.MAG_DISTURBED))
     assert result.mag_ignored_pct == pytest.approx(100.0 * mag_off / rec.n_samples, rel=1e-12)
     assert result.flag_summary == summary(whole.flags)

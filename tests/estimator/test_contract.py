@@ -285,7 +285,7 @@ def test_registry_and_parameter_parsing():
         methods.get("nope")
     est = methods.create("gyro", ["frame=ned"])
     assert est.params.frame == "NED"
-    valid = r"parameter\(s\) gain for GyroParams; valid: acc_range_g, frame, gyr_range"
+    valid = r"unknown parameter 'gain'; the parameters are acc_range_g, frame, gyr_range"
     with pytest.raises(ValueError, match=valid):
         methods.create("gyro", ["gain=3"])
     with pytest.raises(ValueError, match="frame must be 'NED' or 'ENU'"):

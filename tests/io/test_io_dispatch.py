@@ -81,7 +81,8 @@ def test_folder_with_inertial_csv_is_read_as_xio(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"looks like an x-IMU3 export: use read\(.*knee"):
         read(folder / "Inertial.csv")
     (tmp_path / "plain").mkdir()
-    with pytest.raises(ValueError, match=r"folder without an x-IMU3 Inertial\.csv"):
+    with pytest.raises(ValueError, match=r"plain holds no recording: a folder is read as one "
+                       r"recording when it holds an x-IMU3 export \(Inertial\.csv\)"):
         read(tmp_path / "plain")
 
 

@@ -92,7 +92,7 @@ def test_missing_file_and_folder(tmp_path: Path) -> None:
 def test_foreign_files_are_refused(tmp_path: Path) -> None:
     with h5py.File(tmp_path / "other.h5", "w") as f:
         f["x"] = np.zeros(3)
-    with pytest.raises(ValueError, match="not a margtrack recording: attribute format is None"):
+    with pytest.raises(ValueError, match=r"not a margtrack recording \(attribute format is None\)"):
         read_hdf5(tmp_path / "other.h5")
     with h5py.File(tmp_path / "broad.h5", "w") as f:
         f["imu_gyr"] = np.zeros((3, 3))

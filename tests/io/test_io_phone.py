@@ -185,7 +185,8 @@ def test_generic_per_sensor_files_take_the_declared_units(tmp_path, motion):
 def test_folder_and_file_errors(tmp_path, motion):
     empty = tmp_path / "empty"
     empty.mkdir()
-    with pytest.raises(ValueError, match=r"without an x-IMU3 Inertial\.csv or per-sensor files"):
+    with pytest.raises(ValueError, match=r"an x-IMU3 export \(Inertial\.csv\) or per-sensor "
+                       r"files"):
         io.read(empty)
     onlygyr = tmp_path / "g"
     onlygyr.mkdir()

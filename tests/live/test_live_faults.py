@@ -114,7 +114,7 @@ def test_a_first_line_with_zero_acc_only_delays_that_sensor():
     stats = engine.stats()
     assert stats.engine_error is None and stats.frames == 200
     assert stats.health.counts["processed"].tolist() == [200, 200]
-    assert stats.health.counts["flagged"].tolist() == [1, 0]  # ACC_IGNORED, not used
+    assert stats.health.counts["faults"].tolist() == [1, 0]  # ACC_IGNORED, not used
     yaw = _yaw(engine.latest.q_sensor)
     truth = [stream.truth_yaw_rad(s, 1.99) for s in range(2)]
     np.testing.assert_allclose(yaw, truth, atol=math.radians(3.0))
@@ -133,7 +133,7 @@ def test_a_gyro_of_1e300_is_flagged_on_that_sensor_and_the_others_are_untouched(
         runs[name] = (engine, engine.stop_recording().q_sensor)
     engine, q = runs["faulty"]
     assert np.isfinite(q).all() and engine.stats().engine_error is None
-    assert engine.stats().health.counts["flagged"].tolist() == [0, 1, 0]
+    assert engine.stats().health.counts["faults"].tolist() == [0, 1, 0]
     assert engine.stats().health.counts["processed"].tolist() == [200, 200, 200]
     np.testing.assert_allclose(q[:, [0, 2]], runs["clean"][1][:, [0, 2]], atol=1e-12)
     # sensor 1 lost one sample's rotation at most and goes on turning with the truth
@@ -343,7 +343,7 @@ def test_fault_soak_short_every_fault_mixed_unaffected_sensors_all_processed():
         assert sensor["bad_time"] == expected["bad_stamps"][s] + expected["duplicates"][s]
         if s not in stream.affected:
             assert sensor["processed"] == 500 and sensor["held"] == 0, name
-            assert sensor["flagged"] == 0 and sensor["gaps"] == 0, name
+            assert sensor["faults"] == 0 and sensor["gaps"] == 0, name
     assert c["processed"][[0, 2, 3, 8]].tolist() == [500] * 4  # reboot, acc 0, gyro, reboot
     assert summary["sensors"]["s4"]["stale_s"] == pytest.approx(1.5 - 0.05, abs=0.02)
     assert c["reinitialised"].sum() == 0

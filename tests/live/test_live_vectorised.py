@@ -20,7 +20,7 @@ import pytest
 from margtrack import body, methods
 from margtrack import quaternion as quat
 from margtrack.body.kinematics import people_pose
-from margtrack.estimator.flags import DATA_FLAGS, Flag
+from margtrack.estimator.flags import DATA_FLAGS, FAULT_FLAGS, Flag
 from margtrack.live.assembler import Frames
 from margtrack.live.avatars import Avatars
 from margtrack.live.batch_close_kernel import close_sensors
@@ -220,12 +220,12 @@ def test_close_sensors_equals_the_former_numpy_passes(split):
     np.testing.assert_array_equal(q[9], np.broadcast_to(q_last[9], (n, 4)))
 
 
-def test_processed_and_flagged_counts_equal_the_dense_per_sensor_sums():
+def test_processed_and_fault_counts_equal_the_dense_per_sensor_sums():
     rng = np.random.default_rng(4)
     n_sensors, n = 5, 40
     filters = SensorFilters(methods.create("default", rate_hz=100.0), n_sensors)
     processed = np.zeros(n_sensors, dtype=np.int64)
-    flagged = np.zeros(n_sensors, dtype=np.int64)
+    faults = np.zeros(n_sensors, dtype=np.int64)
     for batch in range(4):
         t = (batch * n + np.arange(n)) / 100.0
         gyr = rng.normal(0.0, 0.1, (n_sensors, n, 3))
@@ -237,10 +237,10 @@ def test_processed_and_flagged_counts_equal_the_dense_per_sensor_sums():
         frames = Frames(t, gyr, acc, mag, t.copy(), held)
         _, flags = filters.run(frames)
         processed += (~held).sum(axis=1)  # the former dense formulas
-        flagged += np.count_nonzero(((flags & np.uint16(DATA_FLAGS)) != 0) & ~held, axis=1)
+        faults += np.count_nonzero(((flags & np.uint16(FAULT_FLAGS)) != 0) & ~held, axis=1)
         np.testing.assert_array_equal(filters.processed, processed)
-        np.testing.assert_array_equal(filters.flagged, flagged)
-    assert flagged.sum() > 0 and (processed < 4 * n).any()
+        np.testing.assert_array_equal(filters.faults, faults)
+    assert faults.sum() > 0 and (processed < 4 * n).any()
 
 
 def test_sensor_rates_from_sparse_holds_equal_the_dense_window_sum():

@@ -150,12 +150,18 @@ def _remove_stale_temps(output: Path) -> None:
 
 
 def _checked_outdir(outdir: Path) -> Path:
+    """``outdir`` if it is, or can become, the output folder (created by :func:`_created`)."""
     if outdir.exists() and not outdir.is_dir():
         raise ValueError(f"output folder {outdir} is a file; give a folder (-o OUTDIR)")
     if not outdir.parent.is_dir():
         raise FileNotFoundError(
             f"cannot create output folder {outdir}: {outdir.parent} does not exist"
         )
+    return outdir
+
+
+def _created(outdir: Path) -> Path:
+    """The checked output folder, created once the inputs are known to exist."""
     outdir.mkdir(exist_ok=True)
     if not os.access(outdir, os.W_OK | os.X_OK):
         raise PermissionError(f"output folder {outdir} is not writable; choose another one")
@@ -215,8 +221,9 @@ def plan_batch(
     if config.read_kwargs.get("profile") is not None:  # its content, not only its name
         profile_fp = fingerprint(config.read_kwargs["profile"], full=True)
     out_folder = _checked_outdir(Path(outdir))
-    paths = expand_inputs(inputs, exclude=out_folder)
+    paths = expand_inputs(inputs, exclude=out_folder)  # no input: no folder left behind
     names = output_names(paths)
+    _created(out_folder)
 
     # "default" resolved: rows name the method that ran
     config = dataclasses.replace(config, method=estimator.name)

@@ -2,13 +2,14 @@
 
 Columns (:data:`COLUMNS`): ``file`` (the input), ``status`` (``done``, ``skipped``,
 ``failed``), ``output``, ``samples``, ``duration_s``, ``rate_hz``, ``method``, ``gaps``
-(gap starts), ``flagged_samples``, ``mag_ignored_pct`` (% of samples whose magnetometer
-was not used), ``total_rmse_deg`` / ``heading_rmse_deg`` / ``inclination_rmse_deg``
-(against the recording's truth; empty without one), ``seconds`` (processing time) and
-``error`` (why a ``failed`` input failed). A ``skipped`` row carries the figures of the
-run that made its output. Both files are written atomically; Parquet needs pyarrow
-(``pip install margtrack[parquet]``), without it only the CSV is written and the caller
-is told why.
+(gap starts), ``fault_samples`` (samples with a fault flag: 0 for clean data),
+``rest_samples`` and ``initialising_samples`` (samples in those normal states, not faults),
+``mag_ignored_pct`` (% of samples whose magnetometer was not used), ``total_rmse_deg`` /
+``heading_rmse_deg`` / ``inclination_rmse_deg`` (against the recording's truth; empty
+without one), ``seconds`` (processing time) and ``error`` (why a ``failed`` input failed).
+A ``skipped`` row carries the figures of the run that made its output. Both files are
+written atomically; Parquet needs pyarrow (``pip install margtrack[parquet]``), without it
+only the CSV is written and the caller is told why.
 """
 
 from __future__ import annotations
@@ -30,7 +31,9 @@ FIGURES = (
     "rate_hz",
     "method",
     "gaps",
-    "flagged_samples",
+    "fault_samples",
+    "rest_samples",
+    "initialising_samples",
     "mag_ignored_pct",
     "total_rmse_deg",
     "heading_rmse_deg",
@@ -38,7 +41,7 @@ FIGURES = (
     "seconds",
 )
 COLUMNS = ("file", "status", "output", *FIGURES, "error")
-_INTS = ("samples", "gaps", "flagged_samples")
+_INTS = ("samples", "gaps", "fault_samples", "rest_samples", "initialising_samples")
 _STRS = ("file", "status", "output", "method", "error")
 PARQUET_HINT = "pip install margtrack[parquet] (or pip install pyarrow)"
 

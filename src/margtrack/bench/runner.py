@@ -11,7 +11,9 @@
   truth, a whole recording at once or chunk after chunk (``margtrack run`` and ``batch``
   through :func:`margtrack.run.chunked.run_file`), with the same figures either way;
 - :func:`score` turns an orientation series into a :class:`TrialScore` against the truth
-  (one :class:`ErrorAccumulator` over the whole recording);
+  (one :class:`ErrorAccumulator` over the whole recording); :func:`score_estimate` is the
+  same for an :class:`~margtrack.estimator.Estimate` (``margtrack.score``, the API's way
+  to the figures ``margtrack evaluate`` prints);
 - :func:`evaluate` is both, and :func:`evaluate_all` a set of trials into :class:`Scores`,
   the one result model (per-trial figures, group means, speed, JSON).
 
@@ -47,6 +49,7 @@ __all__ = [
     "evaluate_all",
     "run_method",
     "score",
+    "score_estimate",
 ]
 
 #: the error figures of every result, in degrees
@@ -307,6 +310,28 @@ def score(
         recording.n_samples,
         seconds,
     )
+
+
+def score_estimate(estimate: Any, recording: Recording) -> ErrorSummary:
+    """The error of ``estimate`` against ``recording``'s truth, as ``margtrack evaluate``
+    scores it (``margtrack.score``).
+
+    Parameters
+    ----------
+    estimate : an :class:`~margtrack.estimator.Estimate` of the recording (or anything with
+        its ``quat`` (N, 4) [w, x, y, z], body to earth, and ``frame``, such as a file read
+        with :func:`margtrack.io.read_estimate`).
+    recording : the recording it was made from, with truth ``quat_true``.
+
+    Returns
+    -------
+    :class:`~margtrack.bench.metrics.ErrorSummary`: RMSE (deg) of the total, heading and
+    inclination error over the recording's ``movement`` samples (every sample without a
+    mask; truth holes skipped), and how many samples that is. Scoring every sample instead
+    (``summarize(error_series(...))``) weighs the rests at the start and end of a trial,
+    where the error is small, and reads lower than the benchmark figure.
+    """
+    return score(recording, estimate.quat, estimate.frame).errors
 
 
 def evaluate(method: Method, recording: Recording, groups: Sequence[str] = ()) -> TrialScore:

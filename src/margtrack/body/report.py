@@ -29,6 +29,16 @@ def _axis_name(axis: np.ndarray) -> str:
     return ",".join(f"{v:.3g}" for v in axis)
 
 
+def _faults_and_states(counts: dict[str, int]) -> str:
+    """``"MAG_DISTURBED 12; REST 300"``: the fault flags' counts (``0 faults`` when none),
+    then the states' (rest, initialising: normal, not faults)."""
+    from margtrack.estimator.flags import STATE_FLAGS, Flag
+
+    states = {k: v for k, v in counts.items() if Flag[k] & STATE_FLAGS}
+    faults = ", ".join(f"{k} {v}" for k, v in counts.items() if k not in states) or "0 faults"
+    return "; ".join([faults, *(f"{k} {v}" for k, v in states.items())])
+
+
 def summary_lines(result: BodyResult) -> list[str]:
     """The summary of ``result`` as lines of text (module docstring)."""
     t = result.t_rel_s
@@ -46,9 +56,9 @@ def summary_lines(result: BodyResult) -> list[str]:
     lines.append(f"calibration on {t[w.start]:.2f}-{t[w.stop - 1]:.2f} s "
                  f"({w.stop - w.start} frames); {facing}")
     lines.append(f"{'sensor':<18} {'segment':<16} {'rate Hz':>7} {'spread deg':>10} "
-                 f"{'mag unusable':>12}  flags")
+                 f"{'mag unusable':>12}  faults; states")
     for r, spread in zip(result.sensors, cal.spread_deg, strict=True):
-        flags = ", ".join(f"{k} {v}" for k, v in r.flag_counts.items()) or "none"
+        flags = _faults_and_states(r.flag_counts)
         if r.gap_frames:
             flags += f"; {r.gap_frames} frames across gaps"
         lines.append(f"{r.sensor:<18} {r.segment:<16} {r.rate_hz:7.1f} {spread:10.2f} "

@@ -333,8 +333,7 @@ def process_body(
         try:
             est = methods.create(method, param_values).run(rec).in_frame(frame)
         except UnitError as exc:
-            raise UnitError(f"sensor {sensor}: {exc}", signal=exc.signal,
-                            suspected=exc.suspected) from None
+            raise exc.prefixed(f"sensor {sensor}: ") from None
         except ValueError as exc:
             raise ValueError(f"sensor {sensor}: {exc}") from None
         used_params, method_name = est.params, est.method

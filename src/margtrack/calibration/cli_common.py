@@ -38,7 +38,10 @@ def friendly(func: F) -> F:
         try:
             return func(*args, **kwargs)
         except (ValueError, FileNotFoundError, OSError) as exc:
-            Console(stderr=True).print(f"[bold red]error:[/] {escape(str(exc))}", soft_wrap=True)
+            from margtrack.cli.app import cli_message  # the command line's fix, not Python's
+
+            Console(stderr=True).print(f"[bold red]error:[/] {escape(cli_message(exc))}",
+                                       soft_wrap=True)
             raise typer.Exit(code=2) from None
 
     return wrapper  # type: ignore[return-value]

@@ -15,9 +15,8 @@ from typing import Any
 
 import click
 import typer
-from typer.core import TyperGroup
 
-from margtrack.cli.app import app, err_console
+from margtrack.cli.app import PlainHelpGroup, app, err_console, plain_help
 from margtrack.cli.options import cli_unit_fix
 
 __all__ = ["COMMAND_MODULES", "LAZY_COMMANDS", "app", "cli_unit_fix"]
@@ -26,6 +25,7 @@ __all__ = ["COMMAND_MODULES", "LAZY_COMMANDS", "app", "cli_unit_fix"]
 def _calibrate_command() -> click.Command:
     from margtrack.cli.calibrate import calibrate_app
 
+    plain_help(calibrate_app)
     return typer.main.get_command(calibrate_app)
 
 
@@ -37,6 +37,7 @@ def _live_command() -> click.Command:
     single.command(name="live", help=LAZY_COMMANDS["live"][0])(
         with_compile_notice(live_command, err_console)
     )
+    plain_help(single)
     return typer.main.get_command(single)
 
 
@@ -50,7 +51,7 @@ LAZY_COMMANDS: dict[str, tuple[str, Callable[[], click.Command]]] = {
 }
 
 
-class LazyGroup(TyperGroup):
+class LazyGroup(PlainHelpGroup):
     """The top-level group: :data:`LAZY_COMMANDS` stay placeholders until one is run."""
 
     def __init__(self, **kwargs: Any) -> None:
@@ -99,6 +100,7 @@ def _notice_compilation(typer_app: typer.Typer, names: tuple[str, ...] | None) -
 
 
 _notice_compilation(app, COMPILING_COMMANDS)
+plain_help(app)
 app.info.cls = LazyGroup
 app.info.epilog = (
     "The source papers 000-004 cited in help and outputs (\"000 eq. 5\") are listed in "

@@ -9,6 +9,8 @@ import typer
 
 from margtrack.cli.app import app, console, friendly_errors
 from margtrack.cli.options import (
+    FORWARD_AXIS_HELP,
+    HEADING_HELP,
     AccUnitOption,
     ColumnOption,
     GyrUnitOption,
@@ -53,13 +55,10 @@ def body(
     pose_window: Annotated[str | None, typer.Option(
         "--pose-window", help="START,END s from the start: the reference pose (standing, "
         "facing the heading reference). Default: the first still second.")] = None,
-    heading: Annotated[str, typer.Option(
-        help="What the subject faces in the reference pose: 'pelvis' (the pelvis sensor's "
-        "--forward-axis) or 'north' (magnetic north; every magnetometer must work).")
-    ] = "pelvis",
+    heading: Annotated[str, typer.Option(help=HEADING_HELP)] = "pelvis",
     forward_axis: Annotated[str | None, typer.Option(
-        "--forward-axis", help="The pelvis sensor's axis that points forward: +x, -x, +y, -y, "
-        "+z, -z or x,y,z (default: the map's, else -z, an x-IMU3 on the sacrum).")] = None,
+        "--forward-axis", help=FORWARD_AXIS_HELP.replace("(default -z", "(default: the "
+                                                         "map's, else -z"))] = None,
     rate_hz: Annotated[float | None, typer.Option(
         "--rate-hz", help="Rate of the common time base, Hz (default: the slowest sensor's, "
         "rounded to a whole Hz within 1 %).")] = None,

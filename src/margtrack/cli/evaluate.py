@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import contextlib
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -67,9 +68,10 @@ def evaluate(
         )
     else:
         trials, order = [], ()
-        recs = [(r, ()) for r in read_checked(
-            path, read_options(gyr_unit, acc_unit, mag_unit, time_unit, column, profile)
-        )]
+        with _trials_folder(path, "evaluate"):
+            recs = [(r, ()) for r in read_checked(
+                path, read_options(gyr_unit, acc_unit, mag_unit, time_unit, column, profile)
+            )]
     with Progress(transient=True, disable=not trials) as bar:
         task = bar.add_task(f"{cls.name} on {len(trials)} trials", total=len(trials))
 
@@ -168,7 +170,8 @@ def tune(
             ]
             order = broad.group_order(path)
         else:
-            recordings = [(r, ()) for r in read_checked(path, unit_kw)]
+            with _trials_folder(path, "tune"):
+                recordings = [(r, ()) for r in read_checked(path, unit_kw)]
             order = ()
         bar.remove_task(loading)
         if cv:
@@ -224,6 +227,24 @@ def tune(
     )
     if json_out is not None:
         _write_json(json_out, cv_result.to_json())
+
+
+@contextlib.contextmanager
+def _trials_folder(path: Path, command: str) -> Iterator[None]:
+    """Within the block, a folder that holds no recording is refused with what the
+    command's folder must hold."""
+    from margtrack.errors import NoRecordingError
+
+    try:
+        yield
+    except NoRecordingError:
+        if not path.is_dir():
+            raise
+        raise NoRecordingError(
+            f"{path} holds no trials: margtrack {command} FOLDER reads the .hdf5 recordings "
+            "with truth (quat_true) in a folder, such as the BROAD trials or files margtrack "
+            f"simulate wrote; margtrack {command} FILE reads one recording with truth"
+        ) from None
 
 
 def _write_json(path: Path, data: object) -> None:

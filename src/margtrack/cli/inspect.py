@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Annotated
 
@@ -10,7 +11,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from margtrack.cli.app import app, console, err_console, friendly_errors
+from margtrack.cli.app import app, cli_message, console, err_console, friendly_errors
 from margtrack.cli.options import (
     AccUnitOption,
     ColumnOption,
@@ -42,7 +43,7 @@ def methods(
         table.add_column("what")
         for method in registry.available():
             cls = registry.get(method)
-            doc = (cls.__doc__ or "").strip().splitlines()[0].replace("``", "")
+            doc = description(cls, first_line=True)
             star = " [green](default)[/]" if method == registry.DEFAULT_METHOD else ""
             table.add_row(method + star, doc)
         _print_whole(table)
@@ -52,8 +53,8 @@ def methods(
     shared = {spec.name for spec in specs(Params)}
     own = [s for s in specs(cls.params_type) if s.name not in shared]
     base = [s for s in specs(cls.params_type) if s.name in shared]
-    what = (cls.__doc__ or "").strip().splitlines()[0].replace("``", "")
-    for title, rows in ((f"{cls.name}: {what}", own),
+    console.print(f"{cls.name}: {escape(description(cls))}", soft_wrap=True)
+    for title, rows in ((f"{cls.name}'s own parameters", own),
                         ("input policy and frame (every method)", base)):
         if not rows:
             console.print(f"{title}\n  (no parameters of its own)")
@@ -69,6 +70,25 @@ def methods(
         _print_whole(table)
     console.print(f"set one with -p NAME=VALUE (e.g. margtrack run REC -o OUT -m {cls.name} "
                   f"-p {(own or base)[0].name}=...). {PAPERS_NOTE}", soft_wrap=True)
+
+
+def _paragraph(doc: str | None, first_line: bool) -> str:
+    """The first paragraph (or line) of a docstring on one line, without reST markup."""
+    first = (doc or "").strip().split("\n\n")[0]
+    lines = first.splitlines()[:1] if first_line else first.splitlines()
+    text = " ".join(line.strip() for line in lines)
+    return re.sub(r":\w+:`~?([^`]+)`", r"\1", text).replace("``", "")
+
+
+def description(cls: type, first_line: bool = False) -> str:
+    """What a method is, in one paragraph (or its first line): its class docstring's, or
+    its module's where the class defers to that ("see the module docstring")."""
+    import sys
+
+    text = _paragraph(cls.__doc__, first_line)
+    if "module docstring" in text:
+        text = _paragraph(sys.modules[cls.__module__].__doc__, first_line)
+    return text
 
 
 #: where the paper numbers of the help texts ("000 eq. 5") are resolved
@@ -116,16 +136,19 @@ def info(
             path, **read_options(gyr_unit, acc_unit, mag_unit, time_unit, column, profile)
         )
     for rec in recordings:
+        time_note = ""
         try:
             check_units(rec, path if len(recordings) == 1 else f"{path} [{rec.name}]")
         except UnitError as exc:  # info describes the file anyway; run and evaluate refuse it
-            err_console.print(f"[yellow]warning:[/] {escape(str(exc))}", soft_wrap=True)
-        table = Table(title=f"{rec.name or path.name}", show_header=False)
+            err_console.print(f"[yellow]warning:[/] {escape(cli_message(exc))}", soft_wrap=True)
+            if exc.signal == "time":
+                time_note = f"; timestamps probably in {exc.suspected}: --time-unit {exc.suspected}"
+        table = Table(title=escape(f"{rec.name or path.name}"), show_header=False)
         table.add_column("field")
         table.add_column("value")
         gaps = rec.gaps()
         table.add_row("samples", f"{rec.n_samples}")
-        table.add_row("rate", f"{rec.rate_hz:.3f} Hz (median interval)")
+        table.add_row("rate", f"{rec.rate_hz:.3f} Hz (median interval{time_note})")
         table.add_row("duration", f"{rec.duration_s:.3f} s")
         table.add_row("signals", "gyr rad/s, acc m/s²" + (", mag" if rec.mag is not None else ""))
         if rec.mag is not None:
@@ -158,8 +181,8 @@ def info(
                 truth += f", movement {100 * np.mean(rec.movement):.1f} % of samples"
         table.add_row("truth", truth)
         for key, value in rec.meta.items():
-            if key != "info":
-                table.add_row(key, str(value))
+            if key != "info":  # values hold file names and units: "[deg/s]" is not markup
+                table.add_row(escape(key), escape(str(value)))
         console.print(table)
 
 
@@ -187,7 +210,7 @@ def _estimate_info(path: Path) -> None:
     if est.flags is None:
         table.add_row("flags", "none stored")
     else:
-        table.add_row("flags", summary(est.flags).removeprefix("flags: "))
+        table.add_row("flags", summary(est.flags))
         counts = count_flags(est.flags)
         for name, n in counts.items():
             table.add_row(f"  {name}", f"{n} samples ({100.0 * n / est.n_samples:.2f} %)")

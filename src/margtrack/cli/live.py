@@ -30,6 +30,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from margtrack.body.offsets import Heading
+from margtrack.cli.options import FORWARD_AXIS_HELP, HEADING_HELP
 from margtrack.live.protocol import Source
 
 __all__ = ["live_command"]
@@ -43,7 +44,10 @@ def _friendly(func: F) -> F:
         try:
             return func(*args, **kwargs)
         except (ValueError, FileNotFoundError, OSError, ImportError) as exc:
-            Console(stderr=True).print(f"[bold red]error:[/] {escape(str(exc))}", soft_wrap=True)
+            from margtrack.cli.app import cli_message  # the command line's fix, not Python's
+
+            Console(stderr=True).print(f"[bold red]error:[/] {escape(cli_message(exc))}",
+                                       soft_wrap=True)
             raise typer.Exit(code=2) from None
 
     return wrapper  # type: ignore[return-value]
@@ -80,7 +84,7 @@ def _sensor_names(spec: str | None) -> list[str]:
 def _source(demo: bool, replay: Path | None, udp: int | None, serial: str | None,
             sensors: str | None, speed: float, people: int, motion: str, preset: str,
             seed: int, no_mag: bool, osc: int | None = None, lsl: str | None = None,
-            udp_host: str = "127.0.0.1") -> Source:
+            udp_host: str = "127.0.0.1", time_unit: str = "s") -> Source:
     chosen = [name for name, on in (("--demo", demo), ("--replay", replay is not None),
                                     ("--udp", udp is not None), ("--serial", serial is not None),
                                     ("--osc", osc is not None), ("--lsl", lsl is not None))
@@ -109,10 +113,12 @@ def _source(demo: bool, replay: Path | None, udp: int | None, serial: str | None
     if udp is not None:
         from margtrack.live.udp import UdpSource
 
-        return UdpSource(_sensor_names(sensors), port=udp, host=udp_host, with_mag=not no_mag)
+        return UdpSource(_sensor_names(sensors), port=udp, host=udp_host, with_mag=not no_mag,
+                         time_unit=time_unit)
     from margtrack.live.serial_port import SerialSource
 
-    return SerialSource(str(serial), _sensor_names(sensors), with_mag=not no_mag)
+    return SerialSource(str(serial), _sensor_names(sensors), with_mag=not no_mag,
+                        time_unit=time_unit)
 
 
 @_friendly
@@ -130,8 +136,12 @@ def live_command(
         help="UDP/serial sensors: a count or comma-separated names.")] = None,
     no_mag: Annotated[bool, typer.Option("--no-mag", help="UDP/serial lines carry no mag.")]
     = False,
-    method: Annotated[str, typer.Option("--method", "-m", help="Estimation method.")]
-    = "default",
+    time_unit: Annotated[str, typer.Option(
+        "--time-unit", help="Unit of the UDP/serial lines' timestamps: s, ms, us or ns.")]
+    = "s",
+    method: Annotated[str, typer.Option(
+        "--method", "-m", show_default=False, help="Estimation method (default: the "
+        "recommended one; `margtrack methods` lists them and marks it).")] = "default",
     param: Annotated[list[str] | None, typer.Option(
         "--param", "-p", help="Method parameter as name=value; repeatable.")] = None,
     speed: Annotated[float, typer.Option(help="Replay/demo speed factor; inf: unpaced.")] = 1.0,
@@ -141,10 +151,11 @@ def live_command(
     seed: Annotated[int, typer.Option(help="Demo: random seed.")] = 0,
     calibrate: Annotated[bool, typer.Option(
         help="Calibrate on the first still second (reference pose).")] = True,
-    heading: Annotated[str, typer.Option(help="Calibration heading: north or pelvis.")]
-    = "north",
-    forward_axis: Annotated[str | None, typer.Option(
-        help="heading=pelvis: the pelvis sensor's forward axis, e.g. 0,0,-1.")] = None,
+    heading: Annotated[str | None, typer.Option(
+        help=HEADING_HELP + " Default pelvis, as in margtrack body; north with --demo (its "
+        "simulated sensors are mounted at random, so no axis of theirs points forward).")]
+    = None,
+    forward_axis: Annotated[str | None, typer.Option(help=FORWARD_AXIS_HELP)] = None,
     port: Annotated[int, typer.Option(help="Port of the page (0: any free one).")] = 8080,
     host: Annotated[str, typer.Option(
         help="Address to serve the page on. 127.0.0.1: this machine only. Any other address "
@@ -187,12 +198,23 @@ def live_command(
 ) -> None:
     """Track sensors live and show the avatar in a browser page (000's prototype system)."""
     console = Console()
+    if heading is None:
+        heading = "north" if demo else "pelvis"
     if heading not in ("north", "pelvis"):
         raise ValueError(f"--heading must be north or pelvis, got {heading!r}")
-    axis = None if forward_axis is None else [float(v) for v in forward_axis.split(",")]
+    if heading == "north" and forward_axis is not None:
+        raise ValueError("--forward-axis gives the heading from the pelvis sensor; leave it "
+                         "out with --heading north, or use --heading pelvis")
+    axis = None
+    if heading == "pelvis":
+        from margtrack.body.mapping import parse_axis
+        from margtrack.body.workflow import DEFAULT_FORWARD_AXIS
+
+        axis = parse_axis(forward_axis if forward_axis is not None else DEFAULT_FORWARD_AXIS)
     source = _source(demo, replay, udp, serial, sensors, speed, people, motion, preset, seed,
                      no_mag, osc, lsl,
-                     udp_host=_udp_host(udp_host, udp is not None or osc is not None))
+                     udp_host=_udp_host(udp_host, udp is not None or osc is not None),
+                     time_unit=time_unit)
     if record is not None:
         from margtrack.io.safe_output import check_output
 
@@ -256,7 +278,7 @@ def _calibrated(source: Source, specs: list[str]) -> Source:
 
 def _headless(source: Source, method: str, params: list[str] | dict[str, Any],
               calibrate: bool, heading: str,
-              axis: list[float] | None, duration: float | None, console: Console,
+              axis: Any, duration: float | None, console: Console,
               record: Path | None = None, force: bool = False, *,
               summary: Path | None = None, stale_after_s: float | None = None) -> None:
     import time

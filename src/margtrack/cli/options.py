@@ -21,8 +21,24 @@ from margtrack.units import (
 )
 
 MethodOption = Annotated[
-    str, typer.Option("--method", "-m", help="Estimation method (see `margtrack methods`).")
+    str,
+    typer.Option(
+        "--method", "-m", show_default=False,
+        help="Estimation method (default: the recommended one; `margtrack methods` lists "
+        "them and marks it).",
+    ),
 ]
+#: what the subject faces in the reference pose (margtrack body, margtrack live)
+HEADING_HELP = (
+    "What the subject faces in the reference pose: 'pelvis' (the pelvis sensor's "
+    "--forward-axis) or 'north' (magnetic north; every magnetometer must work)."
+)
+#: the pelvis sensor's forward axis, one spelling for margtrack body and margtrack live
+FORWARD_AXIS_HELP = (
+    "The pelvis sensor's axis that points forward: +x, -x, +y, -y, +z, -z or x,y,z "
+    "(default -z, an x-IMU3 on the sacrum)."
+)
+
 ParamOption = Annotated[
     list[str] | None,
     typer.Option("--param", "-p", help="Method parameter as name=value; repeatable."),
@@ -164,11 +180,12 @@ def cli_unit_fix(signal: str, suspected: str) -> str:
 
 
 def check_units(rec: Recording, source: object) -> Recording:
-    """``rec`` if its magnitudes look like rad/s and m/s², else a UnitError naming ``source``."""
+    """``rec`` if its magnitudes look like rad/s, m/s² and s, else a UnitError naming
+    ``source``."""
     try:
-        check_unit_magnitudes(rec.gyr, rec.acc, fix=cli_unit_fix)
+        check_unit_magnitudes(rec.gyr, rec.acc, fix=cli_unit_fix, t_s=rec.t)
     except UnitError as exc:
-        raise UnitError(f"{source}: {exc}", signal=exc.signal, suspected=exc.suspected) from None
+        raise exc.prefixed(f"{source}: ") from None
     return rec
 
 

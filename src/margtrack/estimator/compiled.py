@@ -213,8 +213,9 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
                 dt = self._dt_default
             else:
                 dt = 0.0
+        t = np.array([0.0 if not np.isfinite(clock) else clock + float(dt)])
         if not self._probe.done:
-            self._probe.add(g[:, None] if self.uses_gyr else None, a[:, None])
+            self._probe.add(g[:, None] if self.uses_gyr else None, a[:, None], float(t[0]))
         buffers = self._buffers
         if buffers is None or buffers[0].shape[0] != n_sensors:
             buffers = self._buffers = (
@@ -224,7 +225,6 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
             )
         q_out, x_out, flags = buffers
         has = (mag is not None) | (self._has_gyr_bit if gyr is not None else 0)
-        t = np.array([0.0 if not np.isfinite(clock) else clock + float(dt)])
         self._run_kernel(
             state.rows, state.clock, t, _read_only(np.ascontiguousarray(g[:, None])),
             _read_only(np.ascontiguousarray(a[:, None])),

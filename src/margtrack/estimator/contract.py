@@ -37,8 +37,14 @@ from margtrack.estimator.flags import Flag, first_problem
 from margtrack.estimator.initial import initial_orientation, usable_for_init
 from margtrack.estimator.inputs import Inputs, recordings, signal_array
 from margtrack.estimator.params import Params
-from margtrack.estimator.units import UnitProbe, check_series_units, scale_to_si
+from margtrack.estimator.units import (
+    UnitProbe,
+    check_series_times,
+    check_series_units,
+    scale_to_si,
+)
 from margtrack.recording import Recording
+from margtrack.units import convert_unit
 
 Array = NDArray[np.float64]
 
@@ -77,6 +83,7 @@ class Estimator(ABC, Generic[P, S]):
     rejects_mag_disturbance: ClassVar[bool] = False
     #: state fields a restart after a gap keeps (what the method knows of the sensor)
     kept_on_restart: ClassVar[tuple[str, ...]] = ()
+    #: the unit check of ``update`` (a :class:`UnitProbe` reading this estimator's clock)
 
     def __init__(
         self, params: P | None = None, *, rate_hz: float | None = None, **param_values: Any
@@ -236,7 +243,7 @@ class Estimator(ABC, Generic[P, S]):
         t = np.array([t_prev + (0.0 if fresh else float(dt))])
         gyr_a, acc_a = lift(gyr), lift(acc)
         if not self._probe.done:
-            self._probe.add(gyr_a if self.uses_gyr else None, acc_a)
+            self._probe.add(gyr_a if self.uses_gyr else None, acc_a, float(t[0]))
         est = self._run_arrays(gyr_a, acc_a, lift(mag), t, check_units=False)
         return est.quat[0, 0] if one else est.quat[:, 0]
 
@@ -251,16 +258,18 @@ class Estimator(ABC, Generic[P, S]):
         rate_hz: float | None = None,
         gyr_unit: str = "rad/s",
         acc_unit: str = "m/s2",
+        time_unit: str = "s",
         check_units: bool = True,
     ) -> Estimate:
         """Process a whole series in compiled code and return an :class:`Estimate`.
 
         Give a :class:`Recording`, a list of Recordings with equal timestamps (S sensors),
         or arrays ``gyr``/``acc``/``mag`` of shape (N, 3) or (S, N, 3) with timestamps
-        ``t`` (N,) s or ``rate_hz`` (or the constructor's). Arrays are in rad/s and m/s²
-        unless ``gyr_unit="deg/s"`` / ``acc_unit="g"`` say otherwise; the field in any
-        unit. Units are checked (``check_units=False`` skips it). Continues from the
-        current state, so two half runs equal one whole run.
+        ``t`` (N,) s or ``rate_hz`` (or the constructor's). Arrays are in rad/s, m/s² and s
+        unless ``gyr_unit="deg/s"`` / ``acc_unit="g"`` / ``time_unit="ms"`` (or "us",
+        "ns") say otherwise; the field in any unit. Units are checked (deg/s, g and
+        timestamps in ms are refused with the fix; ``check_units=False`` skips it).
+        Continues from the current state, so two half runs equal one whole run.
         """
         if data is not None:
             if any(x is not None for x in (gyr, acc, mag, t, rate_hz)):
@@ -277,9 +286,14 @@ class Estimator(ABC, Generic[P, S]):
             has_mag = [r.mag is not None for r in recs]
             if any(has_mag) and not all(has_mag):
                 raise ValueError("either every recording or none must have a magnetometer")
+            if time_unit != "s":
+                raise ValueError(
+                    "time_unit applies to arrays; convert a Recording with "
+                    f"rec.with_units(time={time_unit!r})"
+                )
             if check_units:
                 for r in recs:
-                    check_series_units(r.gyr, r.acc, path="recording")
+                    check_series_units(r.gyr, r.acc, path="recording", t=r.t)
 
             def stacked(name: str) -> Array:
                 # a single recording is passed as a view: no copy of long series
@@ -299,7 +313,9 @@ class Estimator(ABC, Generic[P, S]):
             raise ValueError("run() needs a Recording or at least acc (and gyr) arrays")
         one = np.asarray(acc).ndim == 2
         n = np.asarray(acc).shape[-2] if np.asarray(acc).ndim >= 2 else 0
-        times = self._timestamps(t, rate_hz, n)
+        times = self._timestamps(
+            None if t is None else convert_unit(t, "time", time_unit), rate_hz, n
+        )
 
         def lift(x: ArrayLike | None, scale: float = 1.0) -> Array | None:
             if x is None:
@@ -311,6 +327,8 @@ class Estimator(ABC, Generic[P, S]):
 
         gyr_a = lift(gyr, scale_to_si("gyr", gyr_unit))
         acc_a = lift(acc, scale_to_si("acc", acc_unit))
+        if check_units and t is not None:  # timestamps given, not a rate
+            check_series_times(times, gyr_a, path="arrays")
         est = self._run_arrays(gyr_a, acc_a, lift(mag), times, check_units=check_units)
         return squeezed(est) if one else est
 

@@ -9,11 +9,22 @@ sample. Outputs stay aligned sample for sample whatever the flags say.
 from __future__ import annotations
 
 import enum
+from collections.abc import Mapping
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["DATA_FLAGS", "Flag", "count_flags", "describe", "summary"]
+__all__ = [
+    "DATA_FLAGS",
+    "FAULT_FLAGS",
+    "STATE_FLAGS",
+    "Flag",
+    "count_flags",
+    "describe",
+    "format_summary",
+    "percent",
+    "summary",
+]
 
 
 class Flag(enum.IntFlag):
@@ -46,10 +57,19 @@ DATA_FLAGS = (
     Flag.INVALID | Flag.CLOCK | Flag.GAP | Flag.GYR_CLIPPED | Flag.ACC_IGNORED | Flag.MAG_IGNORED
 )
 
+#: flags that say a sample was not measured or used as it should have been: the input's faults
+#: and the disturbances the method rejected. A recording with none of them is clean data;
+#: the summaries count them apart from the states.
+FAULT_FLAGS = DATA_FLAGS | Flag.MAG_DISTURBED
+
+#: flags that describe a normal state of the sensor or the method, not a fault
+STATE_FLAGS = Flag.REST | Flag.INITIALISING
+
 _FIXES = {
     Flag.INVALID: "remove or interpolate non-finite values",
     Flag.CLOCK: "check the timestamps (they must increase)",
-    Flag.GAP: "the recording has missing samples; raise max_gap_s to integrate across gaps",
+    Flag.GAP: "the recording has missing samples there (raise max_gap_s to integrate across "
+    "gaps); if most intervals are gaps, the timestamps are not in s: declare their unit",
     Flag.GYR_CLIPPED: "check gyr units (rad/s) and gyr_range_deg_s",
     Flag.ACC_IGNORED: "check acc units (m/s²), acc_range_g and zero samples",
     Flag.MAG_IGNORED: "the magnetometer is zero, clipped or stuck there",
@@ -73,29 +93,62 @@ def count_flags(flags: ArrayLike) -> dict[str, int]:
     return out
 
 
-def summary(flags: ArrayLike) -> str:
-    """One line for people: flagged samples of the total and per flag with the first sample.
+def percent(share: float) -> str:
+    """A share in percent for people: ``"35"``, ``"0.19"``, ``"100"`` (never ``"1e+02"``)."""
+    if share >= 10.0 or share == 0.0:
+        return f"{share:.0f}"
+    if share >= 0.01:
+        return f"{share:.2g}"
+    return "<0.01"
 
-    ``"flags: 12 of 9000 samples (0.13 %): GAP 1 (first at sample 4500), ..."``; with
-    S sensors the sample index is per sensor and the sensor is named.
+
+def format_summary(
+    total: int, faulty: int, counts: Mapping[Flag, int], first: Mapping[Flag, str]
+) -> str:
+    """The summary line from tallies: ``total`` samples, ``faulty`` of them with a fault
+    flag, per flag its count and where it first occurs (``"sample 12"``).
+
+    Faults (:data:`FAULT_FLAGS`) and states (:data:`STATE_FLAGS`, normal: rest,
+    initialising) are listed apart, so ``faults: 0 of N samples`` means clean data.
+    """
+
+    def listed(group: Flag, with_share: bool) -> str:
+        parts = []
+        for f in Flag:
+            n = counts.get(f, 0)
+            if n and f & group:
+                share = f"{percent(100.0 * n / total)} %, " if with_share else ""
+                parts.append(f"{f.name} {n} ({share}first at {first[f]})")
+        return ", ".join(parts)
+
+    text = f"faults: {faulty} of {total} samples"
+    if faulty:
+        text += f" ({percent(100.0 * faulty / total)} %): {listed(FAULT_FLAGS, False)}"
+    states = listed(STATE_FLAGS, True)
+    return f"{text}; states: {states}" if states else text
+
+
+def summary(flags: ArrayLike) -> str:
+    """One line for people: faulty samples of the total, per flag the count and first sample.
+
+    ``"faults: 108 of 56940 samples (0.19 %): MAG_DISTURBED 108 (first at sample 9948);
+    states: REST 19865 (35 %, first at sample 429)"``; faults and states apart
+    (:func:`format_summary`). With S sensors the sample index is per sensor and the sensor
+    is named.
     """
     arr = np.asarray(flags).astype(np.uint16, copy=False)
-    total = arr.size
-    flagged = int(np.count_nonzero(arr))
-    if flagged == 0:
-        return f"flags: none of {total} samples"
-    parts = []
+    counts: dict[Flag, int] = {}
+    first: dict[Flag, str] = {}
     for f in Flag:
         hits = np.argwhere(arr & int(f))
         if hits.size == 0:
             continue
-        first = hits[0]
-        where = f"sample {int(first[-1])}"
+        where = f"sample {int(hits[0][-1])}"
         if arr.ndim == 2:
-            where = f"sensor {int(first[0])}, {where}"
-        parts.append(f"{f.name} {hits.shape[0]} (first at {where})")
-    share = 100.0 * flagged / total
-    return f"flags: {flagged} of {total} samples ({share:.2g} %): " + ", ".join(parts)
+            where = f"sensor {int(hits[0][0])}, {where}"
+        counts[f], first[f] = int(hits.shape[0]), where
+    faulty = int(np.count_nonzero(arr & int(FAULT_FLAGS)))
+    return format_summary(int(arr.size), faulty, counts, first)
 
 
 def first_problem(flags: ArrayLike, mask: int = int(DATA_FLAGS)) -> str | None:

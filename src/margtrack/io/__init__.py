@@ -14,6 +14,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from margtrack.errors import InputError, NoRecordingError
 from margtrack.lazy import lazy_names
 from margtrack.recording import Recording
 from margtrack.units import unit_factor
@@ -161,7 +162,8 @@ def read(
     layout = {"delimiter": delimiter, "decimal": decimal}
     if not isinstance(path, str | Path):
         if columns is not None:
-            raise ValueError("columns= maps one table; per-sensor files are mapped by name")
+            raise InputError("columns= maps one table; per-sensor files are mapped by name",
+                             fix="columns=", cli_fix="--column")
         from margtrack.io.phone import read_sensor_files
 
         return read_sensor_files(path, **given, **layout, **kw)
@@ -179,23 +181,23 @@ def read(
 
             return read_xio_sensor(p, **{"check_units": False, **kw, **given})
         if any((d / "Inertial.csv").is_file() for d in p.iterdir()):
-            raise ValueError(
-                f"{p} holds several x-IMU3 sensor folders; read them all with "
-                "read_xio_body(path) or one with read(path / <sensor>)"
+            fix = "read them all with read_xio_body(path) or one with read(path / <sensor>)"
+            raise InputError(
+                f"{p} holds several x-IMU3 sensor folders; {fix}", fix=fix,
+                cli_fix=f"margtrack body {p} -o OUT/ tracks them all as a body, margtrack "
+                f"run {p}/<sensor> -o OUT.h5 one sensor",
             )
         from margtrack.io.phone import read_sensor_files, sensor_files
 
         if "gyr" in sensor_files(p):
             return read_sensor_files(p, **given, **layout, **kw)
-        raise ValueError(
-            f"{p} is a folder without an x-IMU3 Inertial.csv or per-sensor files "
-            "(Gyroscope.csv, Accelerometer.csv, Magnetometer.csv); give a file path"
-        )
+        _no_recording(p)
     suffix = p.suffix.lower()
     if suffix in HDF5_SUFFIXES:
         import h5py
 
         from margtrack.io.broad import read_broad
+        from margtrack.io.estimate_reader import ESTIMATE_FORMAT
         from margtrack.io.hdf5 import read_hdf5
         from margtrack.io.live_hdf5 import LIVE_FORMAT
 
@@ -203,16 +205,26 @@ def read(
             with h5py.File(p, "r") as f:
                 is_broad = "imu_gyr" in f
                 is_live = f.attrs.get("format") == LIVE_FORMAT
+                is_estimate = f.attrs.get("format") == ESTIMATE_FORMAT
         except OSError as exc:
             raise ValueError(f"{p} is not a readable HDF5 file: {exc}") from None
+        if is_estimate:
+            _an_estimate(p)
         if is_live:
-            raise ValueError(f"{p} is a live recording of several sensors: read them with "
-                             "read_any(path) or read_live_recording(path)")
+            fix = "read them with read_any(path) or read_live_recording(path)"
+            raise InputError(
+                f"{p} is a live recording of several sensors: {fix}", fix=fix,
+                cli_fix=f"margtrack body {p} -o OUT/ tracks them as a body, margtrack live "
+                f"--replay {p} replays the session",
+            )
         rec = read_broad(p, **kw) if is_broad else read_hdf5(p, **kw)
         return _declared(rec, p, declared)
     if suffix in TABLE_SUFFIXES:
         from margtrack.io.csv import is_margtrack_csv, read_csv
+        from margtrack.io.estimate_reader import is_estimate_file
 
+        if is_estimate_file(p):
+            _an_estimate(p)
         if columns is not None:
             return read_csv(p, columns, **{"check_units": False, **kw, **given, **layout})
         if is_margtrack_csv(p):
@@ -241,9 +253,9 @@ def _read_other_table(
                                    **layout})
         return replace(rec, meta={**rec.meta, "layout_name": "phyphox"})
     if p.name == "Inertial.csv":
-        raise ValueError(
-            f"{p} looks like an x-IMU3 export: use read(r'{p.parent}') on its folder"
-        )
+        fix = f"use read(r'{p.parent}') on its folder"
+        raise InputError(f"{p} looks like an x-IMU3 export: {fix}", fix=fix,
+                         cli_fix=f"give its folder, {p.parent}")
     if {"time", "seconds_elapsed", "x", "y", "z"} <= set(header) or any(
         h.startswith(("Gyroscope x", "Acceleration x", "Magnetic field x")) for h in header
     ):
@@ -251,8 +263,40 @@ def _read_other_table(
             f"{p} is one sensor of a phone logger export (one file per sensor); give the "
             f"folder that holds Gyroscope.csv and the accelerometer file: {p.parent}"
         )
-    raise ValueError(f"{p} is not a margtrack CSV; the file has columns {header}; "
-                     + mapping_hint(header))
+    hint = mapping_hint(header)
+    raise InputError(f"{p} is not a margtrack CSV; the file has columns {header}; "
+                     + hint.python, fix=hint.python, cli_fix=hint.cli)
+
+
+def _no_recording(p: Path) -> None:
+    """Raise :class:`~margtrack.errors.NoRecordingError`: folder ``p`` is no recording."""
+    inside = sorted(q.name for q in p.iterdir()
+                    if q.suffix.lower() in (*HDF5_SUFFIXES, *TABLE_SUFFIXES))
+    if inside:
+        listed = ", ".join(inside[:3]) + (", ..." if len(inside) > 3 else "")
+        fix = "read them all with read_any(path), or one with read(path / name)"
+        raise NoRecordingError(
+            f"{p} is a folder of {len(inside)} recording file(s) ({listed}), not one "
+            f"recording; {fix}", fix=fix,
+            cli_fix=f"margtrack batch {p} -o OUT/ runs them all, margtrack evaluate {p} "
+            f"scores them against their truth, margtrack run {p}/{inside[0]} -o OUT.h5 runs "
+            "one",
+        )
+    raise NoRecordingError(
+        f"{p} holds no recording: a folder is read as one recording when it holds an x-IMU3 "
+        "export (Inertial.csv) or per-sensor files (Gyroscope.csv, Accelerometer.csv, "
+        "Magnetometer.csv); give such a folder or a recording file (.h5, .hdf5, .csv)"
+    )
+
+
+def _an_estimate(p: Path) -> None:
+    """Raise :class:`~margtrack.errors.InputError`: ``p`` is an estimate, not a recording."""
+    fix = "read it with margtrack.io.read_estimate(path)"
+    raise InputError(
+        f"{p} is an orientation estimate file, not a recording; {fix}", fix=fix,
+        cli_fix=f"margtrack info {p} describes it, margtrack plot {p} --truth RECORDING -o "
+        "OUT.png compares it with a recording's truth; run and evaluate take the recording",
+    )
 
 
 def _declared(rec: Recording, path: Path, declared: dict[str, str | None]) -> Recording:

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from margtrack.errors import InputError
 from margtrack.frames import check_frame
 from margtrack.io.estimate_csv import (
     CSV_BLOCK_ROWS,
@@ -171,9 +172,10 @@ def _read_margtrack(path: Path, comments: list[str], header: list[str], skip: in
     known = [c for cols in _FIELD_COLUMNS.values() for c in cols]
     extra = [c for c in header if c not in known]
     if extra:
-        raise ValueError(
-            f"{path}: unexpected columns {extra} in a margtrack CSV; "
-            "read it with read_csv(path, columns={...}) to choose columns"
+        fix = "read it with read_csv(path, columns={...}) to choose columns"
+        raise InputError(
+            f"{path}: unexpected columns {extra} in a margtrack CSV; {fix}", fix=fix,
+            cli_fix="choose its columns with --column KEY=NAME[,NAME,NAME]",
         )
     wanted = {
         field: cols for field, cols in _FIELD_COLUMNS.items()
@@ -239,9 +241,11 @@ def read_csv(
             from margtrack.io.csv_layout import mapping_hint, sniff
 
             header = sniff(p, delimiter, decimal).header
-            raise ValueError(
+            hint = mapping_hint(header)
+            raise InputError(
                 f"{p} is not a margtrack CSV (its first line is not '{MAGIC} ...'); "
-                f"{mapping_hint(header)}; the file has columns {header}"
+                f"the file has columns {header}; {hint.python}",
+                fix=hint.python, cli_fix=hint.cli,
             )
         given = {"gyr_unit": (gyr_unit, "rad/s"), "acc_unit": (acc_unit, "m/s2"),
                  "time_unit": (time_unit, "s"), "mag_unit": (mag_unit, None),
@@ -280,9 +284,12 @@ def _read_mapped(
     if "t" in mapping and rate_hz is not None:
         raise ValueError("give either a time column (columns['t']) or rate_hz, not both")
     if "t" not in mapping and rate_hz is None:
-        raise ValueError(
-            f"{path}: no time column mapped; map one (--column t=NAME, or columns={{'t': "
-            "NAME, ...}}) or give the sampling rate in Hz (rate_hz=...; no rate is assumed)"
+        fix = ("map one (columns={'t': NAME, ...}) or give the sampling rate in Hz "
+               "(rate_hz=...; no rate is assumed)")
+        raise InputError(
+            f"{path}: no time column mapped; {fix}", fix=fix,
+            cli_fix="map one with --column t=NAME, or give the sampling rate in an import "
+            "profile (rate_hz = ... with --profile; no rate is assumed)",
         )
     table = sniff(path, delimiter, decimal)
     names = [c for cols in mapping.values() for c in cols]
@@ -290,9 +297,10 @@ def _read_mapped(
         values, lines, dropped = read_table(table, names)
     except KeyError as exc:
         good = {k: v for k, v in mapping.items() if all(c in table.header for c in v)}
-        raise ValueError(
+        hint = mapping_hint(table.header, good)
+        raise InputError(
             f"{path}: no column {exc.args[0]!r}; the file has columns {table.header}; "
-            + mapping_hint(table.header, good)
+            + hint.python, fix=hint.python, cli_fix=hint.cli,
         ) from None
     data: dict[str, NDArray[np.float64]] = {}
     start = 0

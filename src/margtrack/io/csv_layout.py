@@ -27,6 +27,7 @@ Array = NDArray[np.float64]
 
 __all__ = [
     "FIELD_WIDTHS",
+    "MappingHint",
     "Table",
     "column_flags",
     "guess_columns",
@@ -230,12 +231,34 @@ def normalise_columns(columns: Mapping[str, Sequence[str] | str]) -> dict[str, l
 
 # --- guessing a column map from header names ------------------------------------------
 
-_TIME = re.compile(
-    r"^(t|time|times|timestamp|timestamps|time_?stamp|t_?s|t_?ms|t_?us|t_?ns|time_?s|"
-    r"time_?ms|time_?us|time_?ns|time \(s\)|time \(ms\)|sec|secs|seconds|seconds_elapsed|"
-    r"elapsed|ts)$",
+#: time words of the usual languages, once a unit is left out (``Zeit [ms]``, ``time_ms``)
+_TIME_WORDS = frozenset({
+    "t", "ts", "time", "times", "timestamp", "timestamps", "time stamp", "time_stamp",
+    "sec", "secs", "seconds", "seconds_elapsed", "elapsed", "elapsed time",
+    "zeit", "zeitstempel", "temps", "horodatage", "tiempo", "marca de tiempo", "tempo",
+    "tijd", "tid", "czas", "aika", "время",
+})
+#: a unit written after a name: in brackets or parentheses, or as a suffix (``_ms``)
+_UNIT_PART = re.compile(
+    r"\s*[\(\[][^\)\]]*[\)\]]\s*$"
+    r"|[_\-\. ](s|ms|us|µs|ns|sec|rad_?s|deg_?s|dps|m_?s2|m_?s\^?2|g|ut|nt|mt|gauss)$",
     re.IGNORECASE,
 )
+
+
+def _without_unit(name: str) -> str:
+    """``name`` without a trailing unit, lower case: ``"Zeit [ms]"`` -> ``"zeit"``."""
+    base = name.strip()
+    for _ in range(2):  # "time_ms [ms]"
+        base = _UNIT_PART.sub("", base).strip()
+    return base.lower()
+
+
+def _is_time(name: str) -> bool:
+    """Whether a column name is a time word of some language, with or without a unit."""
+    return name.strip().lower() in _TIME_WORDS or _without_unit(name) in _TIME_WORDS
+
+
 _PREFIXES = {
     "gyr": ("gyroscope", "gyro", "gyr", "g", "w", "omega", "rotation rate", "rotationrate",
             "angular velocity", "angvel", "rate"),
@@ -260,7 +283,7 @@ def guess_columns(header: Sequence[str]) -> dict[str, list[str]]:
     """A column map proposed from header names; fields it cannot place are left out."""
     out: dict[str, list[str]] = {}
     for name in header:
-        if _TIME.match(name.strip()) and "t" not in out:
+        if _is_time(name) and "t" not in out:
             out["t"] = [name]
     groups: dict[tuple[str, str], str] = {}
     for name in header:
@@ -276,19 +299,27 @@ def guess_columns(header: Sequence[str]) -> dict[str, list[str]]:
     return out
 
 
+def _stated(unit: str, flags: int = re.IGNORECASE) -> re.Pattern[str]:
+    """A pattern finding ``unit`` (a regular expression) stated in a column name: in
+    brackets or parentheses (``[ms]``, ``(deg/s)``) or as a suffix (``_ms``, `` g``)."""
+    return re.compile(rf"([\(\[]\s*({unit})\s*[\)\]]|[_ \-\.]({unit})$)", flags)
+
+
 _UNIT_HINTS = (
-    ("time", re.compile(r"(\(ns\)|[_ ]ns$)", re.I), "ns"),
-    ("time", re.compile(r"(\(us\)|\(µs\)|[_ ]us$)", re.I), "us"),
-    ("time", re.compile(r"(\(ms\)|[_ ]ms$)", re.I), "ms"),
+    ("time", _stated("ns"), "ns"),
+    ("time", _stated("us|µs"), "us"),
+    ("time", _stated("ms"), "ms"),
     ("gyr", re.compile(r"(deg/s|°/s|deg_?s$|dps)", re.I), "deg/s"),
-    ("acc", re.compile(r"(\(g\)|[_ ]g$)", re.I), "g"),
-    ("mag", re.compile(r"(\(nT\)|[_ ]nT$)"), "nT"),
-    ("mag", re.compile(r"(\(G\)|gauss)", re.I), "G"),
+    ("acc", _stated("g"), "g"),
+    ("mag", _stated("nT", 0), "nT"),
+    ("mag", _stated("mG", 0), "mG"),
+    ("mag", re.compile(r"([\(\[]\s*G\s*[\)\]]|gauss)", re.I), "G"),
 )
 
 
 def guess_units(columns: Mapping[str, Sequence[str]]) -> dict[str, str]:
-    """Units suggested by the mapped names (``time_ms`` -> ms, ``(deg/s)`` -> deg/s)."""
+    """Units the mapped names state (``Zeit [ms]``, ``time_ms`` -> ms; ``(deg/s)``, ``_dps``
+    -> deg/s; ``[g]``, ``_g`` -> g), for the signals not in margtrack's own units."""
     out: dict[str, str] = {}
     for signal, pattern, unit in _UNIT_HINTS:
         field = "t" if signal == "time" else signal
@@ -299,7 +330,12 @@ def guess_units(columns: Mapping[str, Sequence[str]]) -> dict[str, str]:
 
 
 def _quote(text: str) -> str:
-    return f'"{text}"' if re.search(r"[\s\"'();&|<>$]", text) else text
+    """``text`` as one word of a shell command line, quoted when it has to be."""
+    if not re.search(r"[\s\"'();&|<>$\[\]*?!#`\\{}~]", text):
+        return text
+    if re.search(r"[\"$`\\!]", text):
+        return "'" + text.replace("'", "'\\''") + "'"
+    return f'"{text}"'
 
 
 def column_flags(columns: Mapping[str, Sequence[str]], units: Mapping[str, str] = {}) -> str:
@@ -310,24 +346,52 @@ def column_flags(columns: Mapping[str, Sequence[str]], units: Mapping[str, str] 
     return " ".join(parts)
 
 
-def mapping_hint(header: Sequence[str], have: Mapping[str, Sequence[str]] | None = None) -> str:
-    """How to map ``header``: the ``--column`` flags (guessed from the names) and the Python
-    keyword; ``have`` are the fields already mapped correctly."""
+@dataclass(frozen=True)
+class MappingHint:
+    """How to map a table's columns, guessed from its header, in both spellings.
+
+    python : ``"map them with read(path, columns={...}, time_unit='ms') (on the command
+        line: --column ...)"``.
+    cli : the command line's, flags that run as pasted when the guess is whole: ``"map
+        them with --column "t=Zeit [ms]" ... --time-unit ms"``.
+    """
+
+    python: str
+    cli: str
+
+
+def mapping_hint(
+    header: Sequence[str], have: Mapping[str, Sequence[str]] | None = None
+) -> MappingHint:
+    """How to map ``header``: the column map guessed from the names with the units they
+    state (``[ms]``, ``(deg/s)``, ``_g``), as ``--column`` flags and as ``read``'s keywords;
+    ``have`` are the fields already mapped correctly."""
     guess = dict(have or {})
     for field, names in guess_columns(header).items():
         guess.setdefault(field, names)
     if not ("gyr" in guess and "acc" in guess):
-        return (
-            "map them with --column t=TIME --column gyr=GX,GY,GZ --column acc=AX,AY,AZ "
-            "[--column mag=MX,MY,MZ] using the file's names (in Python: read(path, "
-            "columns={'t': TIME, 'gyr': [GX, GY, GZ], 'acc': [AX, AY, AZ]}))"
+        flags = ("--column t=TIME --column gyr=GX,GY,GZ --column acc=AX,AY,AZ [--column "
+                 "mag=MX,MY,MZ]")
+        return MappingHint(
+            "map them with read(path, columns={'t': TIME, 'gyr': [GX, GY, GZ], 'acc': [AX, "
+            f"AY, AZ]}}) using the file's names (on the command line: {flags})",
+            f"map them with {flags} using the file's names",
         )
-    flags = column_flags(guess, guess_units(guess))
+    units = guess_units(guess)
+    flags = column_flags(guess, units)
     py = {k: v[0] if len(v) == 1 else v for k, v in guess.items()}
+    keywords = "".join(f", {signal}_unit={unit!r}" for signal, unit in units.items())
+    check = " (guessed from the names: check them)"
     if "t" not in guess:
-        flags = "--column t=TIME " + flags
-        py = {"t": "TIME", **py}
-    return (
-        f"map them with {flags} (check the guess and the units), or in Python "
-        f"read(path, columns={py})"
+        return MappingHint(
+            f"map them with read(path, columns={ {'t': 'TIME', **py} }{keywords}), TIME the "
+            f"time column's name (none was recognised; on the command line: {flags} "
+            "--column t=TIME)",
+            f"map them with {flags} and the time column, --column t=NAME (none was "
+            f"recognised){check}",
+        )
+    return MappingHint(
+        f"map them with read(path, columns={py}{keywords}) (on the command line: {flags})"
+        f"{check}",
+        f"map them with {flags}{check}",
     )

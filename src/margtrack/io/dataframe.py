@@ -59,7 +59,7 @@ def from_dataframe(
         if not ("gyr" in mapping and "acc" in mapping):
             raise ValueError(
                 f"cannot tell the DataFrame's gyr and acc columns; it has columns {header}; "
-                f"pass columns=... ({mapping_hint(header)})"
+                f"pass columns=... ({mapping_hint(header).python})"
             )
     else:
         mapping = normalise_columns(columns)
@@ -67,7 +67,7 @@ def from_dataframe(
     if missing:
         raise ValueError(
             f"the DataFrame has no column {missing[0]!r}; it has columns {header}; "
-            + mapping_hint(header)
+            + mapping_hint(header).python
         )
     data: dict[str, Any] = {}
     for field, cols in mapping.items():

@@ -83,10 +83,12 @@ class EstimateFile:
                 )
             stated = declared
         if stated is None:
-            raise ValueError(
+            from margtrack.errors import with_cli_fix
+
+            raise with_cli_fix(ValueError(
                 f"{self.path} does not say its earth frame (a CSV without a 'frame=' line); "
                 "declare it: --frame ENU or --frame NED (frame= in Python)"
-            )
+            ), " (frame= in Python)", "")
         return Estimate(
             quat=self.quat, t=self.t, frame=check_frame(stated), method=self.method or "",
             params=dict(self.params), outputs=dict(self.outputs), flags=self.flags,

@@ -21,6 +21,7 @@ import h5py
 import numpy as np
 from numpy.typing import ArrayLike
 
+from margtrack.errors import InputError
 from margtrack.io.output_units import output_unit
 from margtrack.io.safe_output import atomic_output
 from margtrack.recording import Recording
@@ -56,7 +57,7 @@ def _naming_path(path: Path) -> Iterator[None]:
     try:
         yield
     except UnitError as exc:  # keep the type: callers tell unit mix-ups from other errors
-        raise UnitError(f"{path}: {exc}", signal=exc.signal, suspected=exc.suspected) from None
+        raise exc.prefixed(f"{path}: ") from None
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
 
@@ -122,11 +123,15 @@ def read_hdf5(path: str | Path) -> Recording:
     with h5py.File(p, "r") as f:
         fmt = f.attrs.get("format")
         if fmt != RECORDING_FORMAT:
-            hint = " (it looks like BROAD: use read_broad)" if "imu_gyr" in f else ""
-            raise ValueError(
-                f"{p} is not a margtrack recording: attribute format is {fmt!r}, "
-                f"expected {RECORDING_FORMAT!r}{hint}; margtrack.io.read picks the right reader"
-            )
+            if fmt == "margtrack-estimate":
+                fix = "read it with margtrack.io.read_estimate(path)"
+                what = "an orientation estimate, not a recording"
+            else:
+                fix = ("it looks like BROAD: use read_broad" if "imu_gyr" in f else
+                       "margtrack.io.read picks the reader of the formats it knows")
+                what = f"not a margtrack recording (attribute format is {fmt!r})"
+            raise InputError(f"{p} is {what}; {fix}", fix=fix,
+                             cli_fix="give a recording (margtrack info FILE says what one holds)")
         version = int(f.attrs.get("version", -1))
         if version != VERSION:
             raise ValueError(

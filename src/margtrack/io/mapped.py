@@ -173,11 +173,12 @@ def build_recording(
             check_units=False, frame=frame, name=name, meta=out_meta, **fields,
         )
         if check_units:
-            check_unit_magnitudes(rec.gyr, rec.acc, fix=unit_fix_keyword(fix_where))
+            check_unit_magnitudes(rec.gyr, rec.acc, fix=unit_fix_keyword(fix_where), t_s=rec.t)
     except ValueError as exc:
         text = f"{source}: {_with_lines(str(exc), lines)}"
         if isinstance(exc, UnitError):
-            raise UnitError(text, signal=exc.signal, suspected=exc.suspected) from None
+            raise UnitError(text, signal=exc.signal, suspected=exc.suspected,
+                            fix=exc.fix) from None
         raise ValueError(text) from None
     return rec
 

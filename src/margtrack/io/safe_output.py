@@ -88,10 +88,12 @@ def check_output(
             "folder or fix its permissions"
         )
     if out.exists() and not force:
-        raise FileExistsError(
+        from margtrack.errors import with_cli_fix
+
+        raise with_cli_fix(FileExistsError(
             f"output {out} already exists and was kept; pass --force (force=True in Python) "
             "to replace it, or choose another output"
-        )
+        ), " (force=True in Python)", "")
     return out
 
 

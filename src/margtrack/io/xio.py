@@ -180,7 +180,9 @@ def read_xio_sensor(
             acc_unit=acc_unit, check_units=False, name=name, meta=meta,
         )
         if check_units:
-            check_unit_magnitudes(rec.gyr, rec.acc, fix=unit_fix_keyword("read_xio_sensor"))
+            check_unit_magnitudes(
+                rec.gyr, rec.acc, fix=unit_fix_keyword("read_xio_sensor"), t_s=rec.t
+            )
     return rec
 
 

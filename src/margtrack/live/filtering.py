@@ -15,8 +15,10 @@ live stream needs on top, per sensor:
   only the sensors that raise are re-initialised (:func:`~margtrack.live.isolation.run_each`).
   The reason is kept per sensor in ``errors``.
 
-Counted per sensor: ``processed`` (samples run, not held), ``flagged`` (processed samples
-with a data flag of the input policy), ``reinitialised``. The checks, holds, last
+Counted per sensor: ``processed`` (samples run, not held), ``faults`` (processed samples
+with a fault flag: the input policy's or a rejected disturbance,
+:data:`~margtrack.estimator.flags.FAULT_FLAGS`; rest is a state, not counted),
+``reinitialised``. The checks, holds, last
 orientations and counts are one compiled pass over each sensor's samples
 (:func:`~margtrack.live.batch_close_kernel.close_sensors`; as numpy passes over the batch they
 were 1.3 ms per frame at 195,000 sensors); Python runs per sensor only for a sensor that
@@ -45,7 +47,7 @@ from numpy.typing import NDArray
 
 from margtrack.estimator.compiled import CompiledEstimator
 from margtrack.estimator.contract import Estimator
-from margtrack.estimator.flags import DATA_FLAGS, Flag
+from margtrack.estimator.flags import FAULT_FLAGS, Flag
 from margtrack.estimator.sensor_threads import in_threads, thread_count
 from margtrack.live.assembler import Frames
 from margtrack.live.batch_close_kernel import close_sensors
@@ -61,7 +63,7 @@ Array = NDArray[np.float64]
 LIVE_PARALLEL_MIN_SAMPLES = 20_000
 
 #: the kernel's flag arguments and its "no array" (kernels.batch_close)
-_DATA_FLAGS, _INITIALISING = np.uint16(DATA_FLAGS), np.uint16(Flag.INITIALISING)
+_FAULT_FLAGS, _INITIALISING = np.uint16(FAULT_FLAGS), np.uint16(Flag.INITIALISING)
 _NONE = np.zeros((0, 0), dtype=np.bool_)
 
 __all__ = ["LIVE_PARALLEL_MIN_SAMPLES", "SensorFilters"]
@@ -75,7 +77,7 @@ class SensorFilters:
         self.n_sensors = n_sensors
         self.q_last = np.tile([1.0, 0.0, 0.0, 0.0], (n_sensors, 1))
         self.processed = np.zeros(n_sensors, dtype=np.int64)
-        self.flagged = np.zeros(n_sensors, dtype=np.int64)
+        self.faults = np.zeros(n_sensors, dtype=np.int64)
         self.reinitialised = np.zeros(n_sensors, dtype=np.int64)
         self.errors = [""] * n_sensors
         self._hot = isinstance(estimator, CompiledEstimator)
@@ -143,8 +145,8 @@ class SensorFilters:
         edges = [self.n_sensors * k // n_threads for k in range(n_threads + 1)]
 
         def part(k: int) -> None:
-            close_sensors(q, flags, stale, held, self.q_last, self.processed, self.flagged, bad,
-                          _DATA_FLAGS, _INITIALISING, edges[k], edges[k + 1])
+            close_sensors(q, flags, stale, held, self.q_last, self.processed, self.faults, bad,
+                          _FAULT_FLAGS, _INITIALISING, edges[k], edges[k + 1])
 
         in_threads(part, n_threads, "margtrack-close")
         return np.flatnonzero(bad)

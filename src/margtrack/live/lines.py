@@ -4,7 +4,9 @@ One sample of one sensor per line, comma separated, SI units, ``.`` as decimal p
 
     t,sensor,gx,gy,gz,ax,ay,az,mx,my,mz
 
-- ``t``: sample time, s (float). Sensors sampled together share the same ``t``: the engine
+- ``t``: sample time, s (float; a source built with ``time_unit="ms"``, ``"us"`` or ``"ns"``
+  takes it in that unit: ``margtrack live --time-unit ms``). Sensors sampled together share
+  the same ``t``: the engine
   puts a frame together from the samples of all sensors with equal ``t``
   (:class:`~margtrack.live.assembler.FrameAssembler`; its ``tick_hz`` rounds the times of
   sensors on unsynchronised clocks onto one grid);
@@ -19,6 +21,11 @@ by 1 with every sample the sensor sends: the engine counts lost samples from its
 datagram dropped by the network or by a full receive buffer) exactly; a smaller number
 than the previous one means the sender restarted (counted as no loss). Without it, losses
 are estimated from timestamp gaps.
+
+Timestamps in ms (µs, ns) sent as s are refused: when a sensor's first lines advance by a
+second or more each while its gyroscope turns, decoding raises
+:class:`~margtrack.units.UnitError` naming the ``time_unit`` to declare (the engine stops
+with it: a stream in the wrong unit is not a corrupt packet but a setting to fix).
 
 Empty lines and lines starting with ``#`` are ignored. A line with another field count, a
 number that does not parse or is not finite, or an unknown sensor is *rejected*: counted in
@@ -39,6 +46,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from margtrack.live.protocol import Chunk, SourceStats
+from margtrack.units import IntervalProbe, UnitError, unit_factor
 
 __all__ = ["LineDecoder", "format_line", "parse_line", "parse_line_seq"]
 
@@ -123,13 +131,20 @@ class LineDecoder:
     sensor_names : the source's sensors (index = position).
     with_mag : whether lines carry ``mx,my,mz``.
     stats : where rejections and delivered samples are counted.
+    time_unit : the unit of the lines' ``t``: "s" (the format's), "ms", "us" or "ns".
     """
 
-    def __init__(self, sensor_names: Sequence[str], with_mag: bool, stats: SourceStats) -> None:
+    def __init__(self, sensor_names: Sequence[str], with_mag: bool, stats: SourceStats,
+                 time_unit: str = "s") -> None:
         self.sensor_names = list(sensor_names)
         self.with_mag = with_mag
         self.stats = stats
+        self.time_factor = unit_factor("time", time_unit)
         self._partial = b""
+        #: per sensor, the check of its first lines' intervals (None once all are judged)
+        self._probes: list[IntervalProbe] | None = [
+            IntervalProbe(_time_fix, "line") for _ in self.sensor_names
+        ]
 
     def feed(self, data: bytes, arrival_s: float | None = None, final: bool = False) -> list[Chunk]:
         """Decode ``data``; complete lines become chunks, a trailing partial line is kept.
@@ -155,6 +170,10 @@ class LineDecoder:
             except ValueError as exc:
                 self.stats.reject(str(exc))
                 continue
+            if self.time_factor != 1.0:
+                t *= self.time_factor
+            if self._probes is not None:
+                self._probe(sensor, t, gyr)
             chunks.append(
                 Chunk(
                     t_s=np.array([t]),
@@ -168,3 +187,18 @@ class LineDecoder:
             )
             self.stats.samples += 1
         return chunks
+
+    def _probe(self, sensor: int, t: float, gyr: np.ndarray) -> None:
+        """Feed sensor ``sensor``'s line to its interval check (raises UnitError)."""
+        assert self._probes is not None
+        try:
+            self._probes[sensor].add(t, math.sqrt(float(gyr @ gyr)))
+        except UnitError as exc:
+            raise exc.prefixed(f"sensor {self.sensor_names[sensor]}: ") from None
+        if all(p.done for p in self._probes):
+            self._probes = None
+
+
+def _time_fix(signal: str, unit: str) -> str:
+    return (f"declare the senders' unit (margtrack live --time-unit {unit}; "
+            f"time_unit={unit!r} for the source)")

@@ -39,6 +39,7 @@ class SerialSource(BaseSource):
     baudrate : line speed, baud (ignored by pseudo-terminals and ``loop://``).
     with_mag : whether lines carry the magnetometer (11 fields) or not (8).
     rate_hz : the device's nominal rate, Hz, if known.
+    time_unit : unit of the lines' timestamps, "s" (the format's), "ms", "us" or "ns".
     """
 
     def __init__(
@@ -48,6 +49,7 @@ class SerialSource(BaseSource):
         baudrate: int = 115200,
         with_mag: bool = True,
         rate_hz: float | None = None,
+        time_unit: str = "s",
     ) -> None:
         names = tuple(str(n) for n in sensor_names)
         if not names:
@@ -57,7 +59,7 @@ class SerialSource(BaseSource):
         super().__init__(SourceInfo(names, rate_hz, with_mag, f"serial {port}"))
         self._port_name = str(port)
         self._baudrate = int(baudrate)
-        self._decoder = LineDecoder(names, with_mag, self._stats)
+        self._decoder = LineDecoder(names, with_mag, self._stats, time_unit)
         self._port: Any = None
 
     @property

@@ -25,7 +25,8 @@ Definitions (all times on the :func:`time.perf_counter` clock, s):
   ``gaps`` intervals with missing samples or restarts (losses, resyncs, stale spells),
   ``resyncs`` clock re-synchronisations, ``bad_time`` samples discarded for a stamp out of
   line with the sensor's clock, ``late``/``duplicates`` samples discarded by the frame
-  assembly, ``flagged`` processed samples with a data flag of the input policy,
+  assembly, ``faults`` processed samples with a fault flag (the input policy's or a
+  rejected disturbance; rest and initialising are states, not faults),
   ``reinitialised`` filter re-initialisations after a failure, ``stale`` whether the
   sensor is stale now and ``stale_s`` the session time it spent stale, s.
 """
@@ -234,7 +235,7 @@ def sensor_counts(clocks: Any, assembler: Any, filters: Any) -> dict[str, NDArra
     return {
         "received": c.received.copy(), "processed": f.processed.copy(),
         "lost": c.lost.copy(), "gaps": c.gaps + a.resumed, "resyncs": c.resyncs.copy(),
-        "flagged": f.flagged.copy(), "reinitialised": f.reinitialised.copy(),
+        "faults": f.faults.copy(), "reinitialised": f.reinitialised.copy(),
         "held": a.dropped - a.discarded_by_sensor, "late": a.late_by_sensor.copy(),
         "duplicates": a.duplicates_by_sensor.copy(), "bad_time": c.bad_time.copy(),
         "discarded": a.discarded_by_sensor.copy(),

@@ -42,6 +42,7 @@ class UdpSource(BaseSource):
     host : address to bind, default ``"127.0.0.1"`` (this machine only).
     with_mag : whether lines carry the magnetometer (11 fields) or not (8).
     rate_hz : the senders' nominal rate, Hz, if known (shown in the viewer).
+    time_unit : unit of the lines' timestamps, "s" (the format's), "ms", "us" or "ns".
     """
 
     def __init__(
@@ -51,6 +52,7 @@ class UdpSource(BaseSource):
         host: str = "127.0.0.1",
         with_mag: bool = True,
         rate_hz: float | None = None,
+        time_unit: str = "s",
     ) -> None:
         names = tuple(str(n) for n in sensor_names)
         if not names:
@@ -59,7 +61,7 @@ class UdpSource(BaseSource):
             raise ValueError(f"port must be in 0..65535, got {port}")
         super().__init__(SourceInfo(names, rate_hz, with_mag, f"UDP {host}:{port}"))
         self._host, self._port = host, int(port)
-        self._decoder = LineDecoder(names, with_mag, self._stats)
+        self._decoder = LineDecoder(names, with_mag, self._stats, time_unit)
         self._sock: socket.socket | None = None
         self._inbox: deque[tuple[bytes, float]] = deque()
         self._ready = threading.Event()

@@ -37,7 +37,7 @@ __all__ = [
 _MAX_SENSOR_ROWS = 64  # four people of 15 sensors
 #: per-sensor counters the engine's health may carry, with their column titles
 _OPTIONAL = (("lost", "lost"), ("gaps", "gaps"), ("resyncs", "resyncs"),
-             ("flagged", "flagged"), ("reinitialised", "re-init"), ("late", "late"),
+             ("faults", "faults"), ("reinitialised", "re-init"), ("late", "late"),
              ("duplicates", "duplicates"), ("bad_time", "bad time"))
 
 

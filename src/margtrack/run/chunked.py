@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from margtrack.bench.runner import ErrorAccumulator
-from margtrack.estimator.flags import Flag
+from margtrack.estimator.flags import FAULT_FLAGS, Flag, format_summary
 from margtrack.io.chunks import open_chunks
 from margtrack.io.mapped import flag_invalid
 from margtrack.io.safe_output import check_output
@@ -44,8 +44,9 @@ __all__ = ["FileSummary", "FlagTally", "run_file"]
 
 #: fields of :meth:`FileSummary.as_row`, in order
 ROW_FIELDS = (
-    "file", "samples", "duration_s", "rate_hz", "method", "gaps", "flagged_samples",
-    "mag_ignored_pct", "total_rmse_deg", "heading_rmse_deg", "inclination_rmse_deg", "seconds",
+    "file", "samples", "duration_s", "rate_hz", "method", "gaps", "fault_samples",
+    "rest_samples", "initialising_samples", "mag_ignored_pct", "total_rmse_deg",
+    "heading_rmse_deg", "inclination_rmse_deg", "seconds",
 )
 #: the chunk size of an offline method: the whole recording (its memory grows with it)
 _WHOLE = 2**62
@@ -62,7 +63,10 @@ class FileSummary:
     rate_hz : median sample rate, Hz (as :attr:`Recording.rate_hz`; nan for one sample).
     method : the estimator's registered name (``"default"`` resolved).
     gaps : number of gaps (samples flagged GAP: each is the first sample after a gap).
-    flagged_samples : samples with any health flag set.
+    fault_samples : samples with a fault flag (:data:`~margtrack.estimator.flags.FAULT_FLAGS`:
+        input faults and rejected disturbances); 0 for clean data.
+    rest_samples, initialising_samples : samples in the states REST and INITIALISING
+        (normal, not faults).
     mag_ignored_pct : share of samples whose magnetometer was not used (MAG_IGNORED or
         MAG_DISTURBED), percent.
     total_rmse_deg, heading_rmse_deg, inclination_rmse_deg : error RMSE against the truth
@@ -79,7 +83,9 @@ class FileSummary:
     rate_hz: float
     method: str
     gaps: int
-    flagged_samples: int
+    fault_samples: int
+    rest_samples: int
+    initialising_samples: int
     mag_ignored_pct: float
     total_rmse_deg: float | None
     heading_rmse_deg: float | None
@@ -104,14 +110,15 @@ class FlagTally:
 
     def __init__(self) -> None:
         self.total = 0
-        self.flagged = 0
+        #: samples with a fault flag (:data:`~margtrack.estimator.flags.FAULT_FLAGS`)
+        self.faulty = 0
         self.counts = {f: 0 for f in Flag}
         self.first: dict[Flag, int] = {}
 
     def add(self, flags: np.ndarray) -> None:
         """Count the next chunk's flags (N,) uint16."""
         arr = np.asarray(flags).astype(np.uint16, copy=False)
-        self.flagged += int(np.count_nonzero(arr))
+        self.faulty += int(np.count_nonzero(arr & int(FAULT_FLAGS)))
         for f in Flag:
             hits = (arr & int(f)) != 0
             n = int(np.count_nonzero(hits))
@@ -121,16 +128,11 @@ class FlagTally:
         self.total += arr.shape[0]
 
     def text(self) -> str:
-        """``"flags: 12 of 9000 samples (0.13 %): GAP 1 (first at sample 4500), ..."``."""
-        if self.flagged == 0:
-            return f"flags: none of {self.total} samples"
-        parts = [
-            f"{f.name} {self.counts[f]} (first at sample {self.first[f]})"
-            for f in Flag if self.counts[f]
-        ]
-        share = 100.0 * self.flagged / self.total
-        return f"flags: {self.flagged} of {self.total} samples ({share:.2g} %): " + ", ".join(
-            parts
+        """``"faults: 12 of 9000 samples (0.13 %): GAP 1 (first at sample 4500), ...;
+        states: REST ..."``."""
+        return format_summary(
+            self.total, self.faulty, self.counts,
+            {f: f"sample {i}" for f, i in self.first.items()},
         )
 
 
@@ -154,11 +156,12 @@ def _unit_fix(signal: str, suspected: str) -> str:
 
 def _check_units(rec: Recording, source: str, start: int = 0) -> None:
     try:
-        check_unit_magnitudes(rec.gyr, rec.acc, fix=_unit_fix)
+        check_unit_magnitudes(rec.gyr, rec.acc, fix=_unit_fix, t_s=rec.t)
     except UnitError as exc:
         where = f" (in the chunk from sample {start}; sample numbers count from there)"
         raise UnitError(
-            f"{source}: {exc}{where if start else ''}", signal=exc.signal, suspected=exc.suspected
+            f"{source}: {exc}{where if start else ''}", signal=exc.signal,
+            suspected=exc.suspected, fix=exc.fix,
         ) from None
 
 
@@ -307,7 +310,9 @@ def run_file(
         rate_hz=float(rate_hz),
         method=estimator.name,
         gaps=gaps,
-        flagged_samples=tally.flagged,
+        fault_samples=tally.faulty,
+        rest_samples=tally.counts[Flag.REST],
+        initialising_samples=tally.counts[Flag.INITIALISING],
         mag_ignored_pct=100.0 * mag_ignored / n if n else 0.0,
         total_rmse_deg=total,
         heading_rmse_deg=heading,
