@@ -78,3 +78,46 @@ def test_help_texts_point_at_the_docs():
     assert listing.exit_code == 0 and "docs/papers.md" in listing.output
     one = runner.invoke(app, ["methods", "bachmann"])
     assert one.exit_code == 0 and "docs/papers.md" in one.output
+
+
+def _anchor(heading: str) -> str:
+    """GitHub's anchor of a heading: lower case, punctuation dropped, spaces to hyphens."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+DOC_LINKS = [
+    (page.name, target)
+    for page in sorted(DOCS.glob("*.md"))
+    for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text(encoding="utf-8"))
+    if not re.match(r"\w+://", target)
+]
+
+
+@pytest.mark.parametrize(("page", "target"), DOC_LINKS, ids=[f"{p}->{t}" for p, t in DOC_LINKS])
+def test_every_docs_link_leads_to_a_file_and_heading(page, target):
+    """Links between the docs pages resolve; a #fragment names a heading of its page."""
+    path, _, fragment = target.partition("#")
+    file = (DOCS / path) if path else DOCS / page
+    assert file.is_file(), f"docs/{page} links to {target}, which is not a file"
+    if fragment:
+        headings = re.findall(r"^#+ (.+)$", file.read_text(encoding="utf-8"), re.M)
+        assert fragment in {_anchor(h) for h in headings}, f"docs/{page}: no heading #{fragment}"
+
+
+API_BLOCKS = _python_blocks(DOCS / "api.md")
+
+
+def test_the_api_page_example_runs(capsys):
+    """docs/api.md's example (simulated data, no files needed) runs as written."""
+    assert API_BLOCKS, "docs/api.md has no python example"
+    for heading, code in API_BLOCKS:
+        exec(compile(code, f"docs/api.md: {heading}", "exec"), {"__name__": "api"})
+    assert re.search(r"^\d+\.\d\d deg$", capsys.readouterr().out, re.M)
+
+
+def test_the_live_page_keeps_the_security_facts_and_the_line_format():
+    """What the README only sums up about the live view is stated in full in docs/live.md."""
+    live = " ".join((DOCS / "live.md").read_text(encoding="utf-8").split())
+    for fact in ("127.0.0.1", "`Origin`", "--host 0.0.0.0", "token", "--udp-host 0.0.0.0",
+                 "UDP has no authentication", "t,sensor,gx,gy,gz,ax,ay,az,mx,my,mz[,seq]"):
+        assert fact in live, fact

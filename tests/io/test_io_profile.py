@@ -95,12 +95,12 @@ def test_missing_profile_and_documented_keys(tmp_path):
         assert f"{key} = " in doc or f"[{key}]" in doc, key
 
 
-def test_the_readme_profile_example_loads(tmp_path):
+def test_the_documented_profile_example_loads(tmp_path):
     import re
 
-    readme = Path(__file__).resolve().parents[2] / "README.md"
-    block = re.search(r"```toml\n(.*?)```", readme.read_text(), re.S)
-    assert block, "the README has no profile example"
+    page = Path(__file__).resolve().parents[2] / "docs" / "commands.md"
+    block = re.search(r"```toml\n(.*?)```", page.read_text(encoding="utf-8"), re.S)
+    assert block, "docs/commands.md has no profile example"
     prof = tmp_path / "lab.toml"
     prof.write_text(block.group(1))
     got = load_profile(prof)
