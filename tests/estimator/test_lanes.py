@@ -20,9 +20,11 @@ from margtrack.estimator import screen_kernel as screen
 from margtrack.estimator.jit import njit
 from margtrack.estimator.skeleton import K_READY, K_SCREEN, N_CONTRACT, N_SCOEF
 
-#: every method whose kernel has lockstep blocks (``contract.entry_points``)
-LOCKSTEP = [n for n in methods.available()
-            if getattr(getattr(methods.get(n), "kernel", None), "lanes", None) is not None]
+#: every online method with lockstep blocks (``contract.entry_points``) that runs without a
+#: magnetometer too (robust-offline and bachmann-accmag run on those of robust and bachmann)
+LOCKSTEP = [r.name for r in methods.RECORDS
+            if r.online and getattr(methods.get(r.name), "mag_optional", False)
+            and getattr(getattr(methods.get(r.name), "kernel", None), "lanes", None) is not None]
 #: one full block and a partial one, so lanes at both ends of a block are checked
 N_SENSORS = contract_lanes.LANES + 5
 BROAD = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "broad"

@@ -7,7 +7,8 @@ import pickle
 import numpy as np
 import pytest
 
-from margtrack import sim
+from margtrack import frames, sim
+from margtrack import quaternion as quat
 from margtrack.estimator.outputs import Deferred, Outputs
 from margtrack.methods.gradient import Gradient
 
@@ -46,9 +47,11 @@ def test_mapped_stays_deferred_and_pickling_materialises():
 
 
 @pytest.mark.kernel
-def test_gradient_run_outputs_equal_the_update_path_bit_for_bit():
-    # run keeps only the screened acc and the bits, expand() computes the rest on read;
-    # update() computes them in its step: the same numbers, with faults and a gap inside
+def test_gradient_run_outputs_are_004s_outputs_of_its_orientations():
+    # run keeps only the screened acc and the bits, expand() computes the rest on read: they
+    # are 004's outputs of the orientations run gave (the same as update's, sample by
+    # sample), with faults and a gap inside: Euler angles (ZYX), the gravity component in
+    # the body, the earth-frame linear acceleration of the screened sample
     rec = sim.simulate_motion("random", duration_s=2.0, rate_hz=100.0, seed=3)
     gyr, acc, mag = rec.gyr.copy(), rec.acc.copy(), rec.mag.copy()
     acc[30:33] = 0.0
@@ -59,17 +62,17 @@ def test_gradient_run_outputs_equal_the_update_path_bit_for_bit():
     est = Gradient().run(gyr=gyr, acc=acc, mag=mag, t=t)
     assert isinstance(est.outputs, Outputs) and len(est.outputs.pending()) == 4
     live = Gradient()
-    q_live, kernel_out = [], []
-    for i in range(t.size):
-        # these intervals add up to t exactly, so both paths see the same clock
-        q_live.append(live.update(gyr[i], acc[i], mag[i], dt=0.0 if i == 0 else t[i] - t[i - 1]))
-        # the extra outputs the step wrote: the lean path's buffer, or the general one's
-        general = live._last_flags is not None
-        kernel_out.append((live._buffers[1][0] if general else live._out_one[4:]).copy())
+    q_live = [live.update(gyr[i], acc[i], mag[i], dt=0.0 if i == 0 else t[i] - t[i - 1])
+              for i in range(t.size)]  # these intervals add up to t exactly
     np.testing.assert_array_equal(est.quat, np.array(q_live))
-    full = np.array(kernel_out)
-    np.testing.assert_array_equal(est.outputs["euler_rad"], full[:, 0:3])
-    np.testing.assert_array_equal(est.outputs["gravity_body_m_s2"], full[:, 3:6])
-    np.testing.assert_array_equal(est.outputs["lin_acc_earth_m_s2"], full[:, 6:9])
-    np.testing.assert_array_equal(est.outputs["ignored"], full[:, 9].astype(np.int8))
+    q, g = est.quat, Gradient().params.gravity_m_s2
+    up = frames.up(est.frame)
+    screened = np.where(np.isfinite(acc), acc, 0.0)  # the screening's "no measurement"
+    np.testing.assert_allclose(est.outputs["euler_rad"], quat.to_euler(q), atol=1e-12)
+    np.testing.assert_allclose(est.outputs["gravity_body_m_s2"], g * quat.rotate_inverse(q, up),
+                               atol=1e-12)
+    np.testing.assert_allclose(est.outputs["lin_acc_earth_m_s2"],
+                               quat.rotate(q, screened) - g * up, atol=1e-9)
+    ignored = est.outputs["ignored"]
+    assert ignored.dtype == np.int8 and np.all(ignored[30:33] != 0) and np.all(ignored[:30] == 0)
     assert est.outputs["ignored"].dtype == np.int8 and est.outputs["ignored"].any()

@@ -253,9 +253,9 @@ def test_the_engine_on_the_hot_path_equals_it_on_run_under_every_fault(strict):
         np.testing.assert_array_equal(counts_hot[name], values, err_msg=name)
     assert counts_hot["gaps"].sum() > 0
     if strict:
-        assert counts_hot["reinitialised"].sum() > 0 and counts_hot["flagged"].sum() == 0
+        assert counts_hot["reinitialised"].sum() > 0 and counts_hot["faults"].sum() == 0
     else:
-        assert counts_hot["flagged"].sum() > 0 and counts_hot["reinitialised"].sum() == 0
+        assert counts_hot["faults"].sum() > 0 and counts_hot["reinitialised"].sum() == 0
 
 
 def test_unrun_marks_no_real_flags():
