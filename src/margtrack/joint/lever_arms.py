@@ -6,7 +6,8 @@ specific force at the centre, in the same frame, is (Seel, Schauer, Raisch 2012)
 
     c = a - ω × (ω × r) - ω̇ × r = a - K r,    K = [ω]×² + [ω̇]×
 
-with ω the gyroscope's rate and ω̇ its time derivative. Both sensors see the same centre,
+with ω the gyroscope's rate and ω̇ its time derivative (both computed in
+:func:`margtrack.joint.kernel.centre_forces`). Both sensors see the same centre,
 so ``|c₁| = |c₂|`` at every sample whatever the two orientations are: the lever arms are
 the least-squares solution of ``|a₁ - K₁ r₁| - |a₂ - K₂ r₂| = 0`` over the recording
 (:func:`estimate_lever_arms`, scipy's Levenberg-Marquardt with the analytic Jacobian).
@@ -30,13 +31,7 @@ from numpy.typing import NDArray
 
 Array = NDArray[np.float64]
 
-__all__ = [
-    "LeverArms",
-    "angular_acceleration",
-    "centre_acceleration",
-    "estimate_lever_arms",
-    "read_lever_arms",
-]
+__all__ = ["LeverArms", "estimate_lever_arms", "read_lever_arms"]
 
 #: residual (m/s²) that a 1 m lever arm costs: the weak prior that pins a hinge's axis
 _PRIOR_M_S2_PER_M = 0.1
@@ -76,26 +71,6 @@ class LeverArms:
         return cls(r, np.full((2, 3), np.nan), "given")
 
 
-def angular_acceleration(t: Array, gyr: Array) -> Array:
-    """ω̇ (N, 3) rad/s² from the rates ``gyr`` (N, 3) rad/s at times ``t`` (N,) s.
-
-    A five-point central difference on a uniform clock (error O(dt⁴) on the signal,
-    noise gain ``√130 / (12 dt)``), a second-order central difference on an irregular one;
-    the first and last two samples use one-sided second-order differences. Central
-    differences look two samples ahead: the online filter's output at a sample waits for
-    the gyroscope's next two samples.
-    """
-    n = t.shape[0]
-    if n < 3:
-        return np.zeros_like(gyr)
-    out = np.gradient(gyr, t, axis=0, edge_order=2)
-    dt = np.diff(t)
-    step = float(np.median(dt))
-    if n >= 5 and np.max(np.abs(dt - step)) <= 1e-3 * step:
-        out[2:-2] = (gyr[:-4] - 8.0 * gyr[1:-3] + 8.0 * gyr[3:-1] - gyr[4:]) / (12.0 * step)
-    return out
-
-
 def _k_matrices(gyr: Array, gyr_dot: Array) -> Array:
     """K = [ω]×² + [ω̇]× per sample, (N, 3, 3)."""
     wx, wy, wz = gyr[:, 0], gyr[:, 1], gyr[:, 2]
@@ -112,17 +87,6 @@ def _k_matrices(gyr: Array, gyr_dot: Array) -> Array:
     k[:, 1, 2] = wy * wz - ax
     k[:, 2, 1] = wy * wz + ax
     return k
-
-
-def centre_acceleration(gyr: Array, gyr_dot: Array, acc: Array, r_m: Array) -> Array:
-    """Specific force at the joint centre, ``c = a - ω×(ω×r) - ω̇×r`` (N, 3) m/s².
-
-    gyr : (N, 3) rad/s; gyr_dot : (N, 3) rad/s²; acc : (N, 3) m/s²; all in the sensor's
-    frame. r_m : (3,) m, joint centre to sensor, sensor frame.
-    """
-    r = np.asarray(r_m, dtype=np.float64)
-    w_r = np.cross(gyr, r)
-    return acc - np.cross(gyr, w_r) - np.cross(gyr_dot, r)
 
 
 def estimate_lever_arms(
@@ -148,7 +112,9 @@ def estimate_lever_arms(
     """
     from scipy.optimize import least_squares
 
-    gyr_dot = np.stack([angular_acceleration(t, gyr[s]) for s in range(2)])
+    from margtrack.joint.kernel import rate_derivative
+
+    gyr_dot = np.stack([rate_derivative(t, np.ascontiguousarray(gyr[s])) for s in range(2)])
     mask = np.ones(t.shape[0], dtype=bool) if usable is None else np.asarray(usable, bool)
     idx = np.flatnonzero(mask)
     if idx.size < 50:

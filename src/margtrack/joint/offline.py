@@ -7,7 +7,7 @@ over every sample, in Gauss-Newton form over per-sample orientation increments
     motion, per sensor and interval:  e = Log(R_t Exp(-ω̄_t dt) R_{t-1}ᵀ),  weight 1/(σ_g² dt)
                                       (ω̄_t the interval's rate, as in the filter)
     link, per sample:                 e = R₁c₁ - R₂c₂,                      weight 1/σ_link²
-    inclination, per sample:          e = (R₁c₁ + R₂c₂)/2 - g ẑ,            weight 1/σ_incl,t²
+    inclination, per sample:          e = ((R₁c₁ + R₂c₂)/2)ₓ,ᵧ,             weight 1/σ_incl,t²
 
 The motion residual is the earth-frame gap between a sample's orientation and the gyroscope's
 prediction from the one before; its Jacobians are ``+I`` and ``-D ≈ -I`` (``D`` the residual's
@@ -122,7 +122,7 @@ def map_refine(
         res[:, 3:] = mean
         res[:, 5] -= g
         weights = np.concatenate([np.repeat(w_link[:, None], 3, 1),
-                                  np.repeat(w_incl[:, None], 3, 1)], axis=1)
+                                  np.repeat(w_incl[:, None], 2, 1), np.zeros((n, 1))], axis=1)
         wj = jac * weights[:, :, None]
         blocks = np.einsum("nki,nkj->nij", jac, wj)  # Jᵀ W J, (N, 6, 6)
         grad = np.einsum("nki,nk->ni", wj, res)  # Jᵀ W e, (N, 6)

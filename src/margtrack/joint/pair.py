@@ -73,8 +73,9 @@ def _own_flags(rec: Recording, gyr_range: float, acc_range: float) -> NDArray[np
     for signal, bits in (("gyr", Flag.INVALID), ("acc", Flag.INVALID | Flag.ACC_IGNORED)):
         rows = np.asarray(held.get(signal, []), dtype=np.intp)
         flags[rows[(rows >= 0) & (rows < flags.size)]] |= np.uint16(bits)
-    flags[np.any(np.abs(rec.gyr) >= gyr_range, axis=1)] |= np.uint16(Flag.GYR_CLIPPED)
-    flags[np.linalg.norm(rec.acc, axis=1) >= acc_range] |= np.uint16(Flag.ACC_IGNORED)
+    flags[np.abs(rec.gyr).max(axis=1) >= gyr_range] |= np.uint16(Flag.GYR_CLIPPED)
+    flags[np.einsum("ij,ij->i", rec.acc, rec.acc) >= acc_range**2] |= np.uint16(
+        Flag.ACC_IGNORED)
     return flags
 
 
@@ -162,8 +163,8 @@ def pair_inputs(
     flags = flags.copy()
     flags[restart] |= np.uint16(Flag.GAP)
     bad = flags != 0
-    near = bad.copy()
-    for shift in (1, 2):  # the five-point derivative reaches two samples each way
-        near[shift:] |= bad[:-shift]
-        near[:-shift] |= bad[shift:]
-    return JointInputs(t, gyr, acc, flags, ~near, restart, tuple(notes))
+    if bad.any():  # the five-point derivative reaches two samples each way
+        meas_ok = np.convolve(bad, np.ones(5), mode="same") == 0
+    else:
+        meas_ok = np.ones(t.shape[0], dtype=bool)
+    return JointInputs(t, gyr, acc, flags, meas_ok, restart, tuple(notes))

@@ -23,9 +23,9 @@ class JointParams:
     rate noise of density ``gyr_noise_rad_s_sqrt_hz`` (per axis, earth frame); the two
     sensors see the same joint-centre acceleration, so their joint-centre specific forces
     rotated to the earth frame differ by noise of std ``link_noise_m_s2`` per axis; the
-    mean of the two is gravity plus the joint's own acceleration, taken as noise of std
-    ``sqrt(incl_noise_m_s2² + incl_norm_gain · (|mean| - g)²)``, so the inclination is
-    trusted less while the joint accelerates.
+    mean of the two is gravity plus the joint's own acceleration, whose horizontal part is
+    taken as noise of std ``sqrt(incl_noise_m_s2² + incl_norm_gain · (|mean| - g)²)``, so
+    the inclination is trusted less while the joint accelerates.
 
     Only ratios matter to the estimate: raising ``link_noise_m_s2`` makes the estimate
     follow the gyroscopes longer and correct the relative orientation more slowly; raising
@@ -40,7 +40,7 @@ class JointParams:
         help="std per axis of the difference of the two joint-centre accelerations")
     incl_noise_m_s2: float = param(
         1.0, unit="m/s²", gt=0,
-        help="std per axis of the mean joint-centre specific force about gravity at rest")
+        help="std per horizontal axis of the mean joint-centre specific force at rest")
     incl_norm_gain: float = param(
         1.0, ge=0,
         help="inclination variance added per (m/s²)² of the mean's norm away from gravity")

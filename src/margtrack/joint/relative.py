@@ -7,6 +7,7 @@ Both need the lever arms (:mod:`.lever_arms`): given, or estimated from the same
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,12 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from margtrack import quaternion as qt
 from margtrack.estimator.flags import Flag
-from margtrack.joint.lever_arms import (
-    LeverArms,
-    angular_acceleration,
-    centre_acceleration,
-    estimate_lever_arms,
-)
+from margtrack.joint.lever_arms import LeverArms, estimate_lever_arms
 from margtrack.joint.pair import JointInputs, pair_inputs
 from margtrack.joint.params import JointParams
 from margtrack.recording import Recording
@@ -105,6 +101,11 @@ class JointEstimate:
         io.write_estimate(view, path)
 
 
+@functools.cache
+def _default_params() -> JointParams:
+    return JointParams()
+
+
 def _coefficients(p: JointParams) -> Array:
     from margtrack.joint import kernel
 
@@ -130,25 +131,26 @@ def _lever_arms(given: ArrayLike | LeverArms | None, inputs: JointInputs) -> Lev
 
 def _run_filter(
     inputs: JointInputs, c: Array, coeffs: Array, offline: bool
-) -> tuple[Array, int, str | None]:
-    """The online estimate, or the backward pass that starts the offline one."""
+) -> tuple[Array, Array, int]:
+    """The online estimate ``(q, rel, first)``, or the backward pass that starts the
+    offline one."""
     from margtrack.joint.kernel import filter_pass
 
     g, ok, restart = inputs.gyr, inputs.meas_ok, inputs.restart
-    q, p_end, first = filter_pass(inputs.t, g[0], g[1], c[0], c[1], ok, restart,
-                                  np.tile([1.0, 0, 0, 0], (2, 1)), np.zeros((6, 6)), False,
-                                  coeffs)
+    q, rel, p_end, first = filter_pass(inputs.t, g, c, ok, restart,
+                                       np.tile([1.0, 0, 0, 0], (2, 1)), np.zeros((5, 5)),
+                                       False, coeffs)
     if first >= inputs.n_samples:
         raise ValueError("no sample has both accelerometers usable (every one is flagged); "
                          "nothing to estimate the orientations from")
     if not offline:
-        return q, first, None
+        return q, rel, first
     back_restart = np.zeros_like(restart)
     back_restart[1:] = restart[::-1][:-1]
-    qb, _, _ = filter_pass(-inputs.t[::-1], -g[0, ::-1], -g[1, ::-1], c[0, ::-1], c[1, ::-1],
-                           ok[::-1], back_restart, np.ascontiguousarray(q[:, -1]), p_end, True,
-                           coeffs)
-    return np.ascontiguousarray(qb[:, ::-1]), 0, None
+    qb, relb, _, _ = filter_pass(-inputs.t[::-1], np.ascontiguousarray(-g[:, ::-1]),
+                                 np.ascontiguousarray(c[:, ::-1]), ok[::-1], back_restart,
+                                 np.ascontiguousarray(q[:, -1]), p_end, True, coeffs)
+    return np.ascontiguousarray(qb[:, ::-1]), relb[::-1], 0
 
 
 def relative_orientation(
@@ -187,30 +189,30 @@ def relative_orientation(
         common time span, too little motion to estimate the lever arms (give them), or no
         usable sample; each message says what to fix.
     """
+    from margtrack.joint.kernel import centre_forces
     from margtrack.joint.offline import map_refine
 
-    p = params if isinstance(params, JointParams) else JointParams(**dict(params or {}))
+    p = params if isinstance(params, JointParams) else (
+        JointParams(**dict(params)) if params else _default_params())
     inputs = pair_inputs(parent, child, max_gap_s=p.max_gap_s,
                          gyr_range_deg_s=p.gyr_range_deg_s, acc_range_g=p.acc_range_g,
                          rate_hz=rate_hz, align_start=align_start)
     arms = _lever_arms(lever_arms, inputs)
-    gyr_dot = [angular_acceleration(inputs.t, inputs.gyr[s]) for s in range(2)]
-    c = np.stack([centre_acceleration(inputs.gyr[s], gyr_dot[s], inputs.acc[s], arms.r_m[s])
-                  for s in range(2)])
+    c = centre_forces(inputs.t, inputs.gyr, inputs.acc, arms.r_m)
     coeffs = _coefficients(p)
-    q, first, _ = _run_filter(inputs, c, coeffs, offline)
+    q, rel, first = _run_filter(inputs, c, coeffs, offline)
     notes = list(inputs.notes)
     flags = inputs.flags.copy()
     if offline:
         q, iterations, last = map_refine(inputs.t, inputs.gyr, c, inputs.meas_ok,
                                          inputs.restart, q, coeffs, p.max_iterations,
                                          p.tolerance_rad)
+        rel = qt.multiply(qt.conjugate(q[0]), q[1])
         if last >= p.tolerance_rad:
             notes.append(f"offline solver stopped after {iterations} iterations (largest last "
                          f"update {last:.2g} rad, tolerance {p.tolerance_rad:g}); raise "
                          "max_iterations for a tighter fit")
     else:
         flags[:first] |= np.uint16(Flag.INITIALISING)
-    rel = qt.multiply(qt.conjugate(q[0]), q[1])
     return JointEstimate(inputs.t, rel, q[0], q[1], arms, flags,
                          "joint_offline" if offline else "joint_online", p, tuple(notes))
