@@ -95,17 +95,27 @@ def _times_exp(q: np.ndarray, vx: float, vy: float, vz: float, left: bool) -> No
 
 
 @numba.njit(cache=True)
-def _level(c: np.ndarray, q: np.ndarray) -> None:
-    """q: the shortest rotation taking the direction of ``c`` (sensor frame) to +z (up)."""
-    norm = np.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
-    ux, uy, uz = c[0] / norm, c[1] / norm, c[2] / norm
+def _level(c: np.ndarray, q: np.ndarray, v: np.ndarray) -> None:
+    """q ← the shortest earth-frame turn taking R(q) c to +z (up), applied to q: the tilt
+    the specific force ``c`` (sensor frame) gives, the heading kept as far as it can be.
+    ``v`` is scratch (3,)."""
+    _rotate_by(q, c, v)
+    norm = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    ux, uy, uz = v[0] / norm, v[1] / norm, v[2] / norm
     if uz < -0.999999:  # upside down: half a turn about x
-        q[0], q[1], q[2], q[3] = 0.0, 1.0, 0.0, 0.0
-        return
-    # axis u × ẑ = (uy, -ux, 0), angle acos(uz): q = [1 + uz, uy, -ux, 0] normalised
-    w, x, y = 1.0 + uz, uy, -ux
+        w, x, y = 0.0, 1.0, 0.0
+    else:  # axis u × ẑ = (uy, -ux, 0), angle acos(uz): [1 + uz, uy, -ux, 0] normalised
+        w, x, y = 1.0 + uz, uy, -ux
     n = np.sqrt(w * w + x * x + y * y)
-    q[0], q[1], q[2], q[3] = w / n, x / n, y / n, 0.0
+    w, x, y = w / n, x / n, y / n
+    a0, a1, a2, a3 = q[0], q[1], q[2], q[3]
+    q[0] = w * a0 - x * a1 - y * a2
+    q[1] = w * a1 + x * a0 + y * a3
+    q[2] = w * a2 - x * a3 + y * a0
+    q[3] = w * a3 + x * a2 - y * a1
+    inv = 1.0 / np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    for i in range(4):
+        q[i] *= inv
 
 
 @numba.njit(cache=True)
@@ -250,7 +260,7 @@ def filter_pass(
     measurement may be used; restart (N,) bool: a gap ends at the sample (not integrated
     over; the covariance restarts). ``q_start`` (2, 4) and ``p_start`` (5, 5) are the state
     to start from when ``started``; otherwise the filter starts at the first usable sample,
-    levelled by its ``c``. ``coeffs``: see the C_ slots.
+    levelled by its ``c`` (``q_start``'s headings kept). ``coeffs``: see the C_ slots.
 
     Returns ``(q, rel, p, first)``: q (2, N, 4) the orientations after each sample (identity
     before the start), rel (N, 4) ``conj(q₁) ⊗ q₂``, p (5, 5) the final covariance, first
@@ -271,6 +281,7 @@ def filter_pass(
     v1 = np.zeros(3)
     v2 = np.zeros(3)
     g = coeffs[C_GRAVITY]
+    restart_pending = False
     for k in range(n):
         if not started:
             if not meas_ok[k]:
@@ -279,13 +290,16 @@ def filter_pass(
                     q[sensor, k, 2], q[sensor, k, 3] = 0.0, 0.0
                 rel[k, 0], rel[k, 1], rel[k, 2], rel[k, 3] = 1.0, 0.0, 0.0, 0.0
                 continue
-            _level(c[0, k], q1)
-            _level(c[1, k], q2)
+            _level(c[0, k], q1, v1)
+            _level(c[1, k], q2, v2)
             _reset_cov(p, coeffs)
             started = True
             first = k
         elif k > 0 and restart[k]:
-            _reset_cov(p, coeffs)  # held over the gap, uncertain again
+            # not integrated over the gap: each sensor levelled again by its first usable
+            # specific force after it, the headings kept, uncertain again
+            restart_pending = True
+            _reset_cov(p, coeffs)
         elif k > 0:
             dt = t[k] - t[k - 1]
             w_prev = coeffs[C_GYR_PREV] * dt
@@ -300,6 +314,10 @@ def filter_pass(
             for i in range(4):
                 p[i, i] += qg
             p[4, 4] += 2.0 * qg
+        if meas_ok[k] and restart_pending:
+            _level(c[0, k], q1, v1)
+            _level(c[1, k], q2, v2)
+            restart_pending = False
         if meas_ok[k]:
             _rotate_by(q1, c[0, k], v1)
             _rotate_by(q2, c[1, k], v2)
