@@ -67,12 +67,13 @@ def _rotate_by(q: np.ndarray, v: np.ndarray, out: np.ndarray) -> None:
 
 
 @numba.njit(cache=True)
-def _times_exp(q: np.ndarray, vx: float, vy: float, vz: float, left: bool) -> None:
-    """q ← q ⊗ Exp(v) (``left`` False) or Exp(v) ⊗ q (``left`` True), renormalised.
+def _times_exp(q: np.ndarray, vx: float, vy: float, vz: float, left: bool,
+               renormalise: bool) -> None:
+    """q ← q ⊗ Exp(v) (``left`` False) or Exp(v) ⊗ q (``left`` True).
 
     Below 0.5 rad (a sample's turn, a correction) cos(θ/2) and sin(θ/2)/θ come from their
-    Taylor series to θ⁶ (error below 1e-9 there, then renormalised): no trigonometry in
-    the loop.
+    Taylor series to θ⁶ (error below 1e-9 there): no trigonometry in the loop. The caller
+    renormalises once per sample (``renormalise`` on its last product).
     """
     a2 = vx * vx + vy * vy + vz * vz
     if a2 < 0.25:
@@ -90,8 +91,10 @@ def _times_exp(q: np.ndarray, vx: float, vy: float, vz: float, left: bool) -> No
     x = a0 * d1 + a1 * d0 + a2 * d3 - a3 * d2
     y = a0 * d2 - a1 * d3 + a2 * d0 + a3 * d1
     z = a0 * d3 + a1 * d2 - a2 * d1 + a3 * d0
-    inv = 1.0 / np.sqrt(w * w + x * x + y * y + z * z)
-    q[0], q[1], q[2], q[3] = w * inv, x * inv, y * inv, z * inv
+    if renormalise:
+        inv = 1.0 / np.sqrt(w * w + x * x + y * y + z * z)
+        w, x, y, z = w * inv, x * inv, y * inv, z * inv
+    q[0], q[1], q[2], q[3] = w, x, y, z
 
 
 @numba.njit(cache=True)
@@ -306,10 +309,12 @@ def filter_pass(
             w_now = dt - w_prev
             _times_exp(q1, w_prev * gyr[0, k - 1, 0] + w_now * gyr[0, k, 0],
                        w_prev * gyr[0, k - 1, 1] + w_now * gyr[0, k, 1],
-                       w_prev * gyr[0, k - 1, 2] + w_now * gyr[0, k, 2], False)
+                       w_prev * gyr[0, k - 1, 2] + w_now * gyr[0, k, 2], False,
+                       not meas_ok[k])
             _times_exp(q2, w_prev * gyr[1, k - 1, 0] + w_now * gyr[1, k, 0],
                        w_prev * gyr[1, k - 1, 1] + w_now * gyr[1, k, 1],
-                       w_prev * gyr[1, k - 1, 2] + w_now * gyr[1, k, 2], False)
+                       w_prev * gyr[1, k - 1, 2] + w_now * gyr[1, k, 2], False,
+                       not meas_ok[k])
             qg = coeffs[C_GYR_VAR] * dt
             for i in range(4):
                 p[i, i] += qg
@@ -341,8 +346,8 @@ def filter_pass(
                 _row(p, dx, ph, y[j], r[j], 0, h[j, 0], 2, h[j, 3], 4, h[j, 5], 0, 0.0)
             # link z: axes x, y, the four inclination components
             _row(p, dx, ph, y[2], r[2], 0, h[2, 0], 1, h[2, 1], 2, h[2, 3], 3, h[2, 4])
-            _times_exp(q1, dx[0], dx[1], 0.0, True)
-            _times_exp(q2, dx[2], dx[3], dx[4], True)
+            _times_exp(q1, dx[0], dx[1], 0.0, True, True)
+            _times_exp(q2, dx[2], dx[3], dx[4], True, True)
         for i in range(4):
             q[0, k, i] = q1[i]
             q[1, k, i] = q2[i]
