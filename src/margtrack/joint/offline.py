@@ -13,22 +13,33 @@ The motion residual is the earth-frame gap between a sample's orientation and th
 prediction from the one before; its Jacobians are ``+I`` and ``-D ≈ -I`` (``D`` the residual's
 own rotation, within a few milliradians of I once the gyroscopes are followed). With them
 the normal equations are banded with half-bandwidth 6 (a full 6x6 block per sample, a
-diagonal one between neighbours), solved by a banded Cholesky
-(:func:`scipy.linalg.solveh_banded`) in O(N) per iteration.
+diagonal one between neighbours), assembled in one compiled pass (:func:`_normal_equations`)
+and solved by a banded Cholesky (:func:`scipy.linalg.solveh_banded`) in O(N) per iteration.
 
 Start: a forward filter pass gives the state at the end of the recording, a backward pass
 from there gives every sample an estimate that has already seen the motion after it (so a
 still start, where the relative heading is unobservable, is not guessed). Gauss-Newton then
-converges in a few iterations. The global heading (a rotation of both sensors about the
-vertical) does not change the cost: the parent's first heading is held by a unit prior.
+converges in a few iterations (it stops when the relative orientation moves less than
+``tolerance_rad``). The global heading (a rotation of both sensors about the vertical) does
+not change the cost: each step's common turn about the vertical is taken out.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from margtrack import quaternion as qt
+from margtrack.joint.kernel import (
+    C_GRAVITY,
+    C_GYR_PREV,
+    C_GYR_VAR,
+    C_INCL_GAIN,
+    C_INCL_VAR,
+    C_LINK_VAR,
+    _rotate_by,
+)
 
 Array = NDArray[np.float64]
 
@@ -37,22 +48,97 @@ __all__ = ["map_refine"]
 _BAND = 6  # half-bandwidth of the normal equations: one sample's six unknowns
 
 
-def _skew_rows(v: Array, scale: float) -> Array:
-    """``scale · [v]×`` for each row of ``v`` (N, 3): (N, 3, 3)."""
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1] = -v[..., 2]
-    out[..., 0, 2] = v[..., 1]
-    out[..., 1, 0] = v[..., 2]
-    out[..., 1, 2] = -v[..., 0]
-    out[..., 2, 0] = -v[..., 1]
-    out[..., 2, 1] = v[..., 0]
-    return scale * out
+@numba.njit(cache=True)
+def _motion_residual(qa: np.ndarray, step: np.ndarray, qb: np.ndarray, out: np.ndarray) -> None:
+    """out = Log(qa ⊗ step* ⊗ qb*), the earth-frame rotation vector (rad) of one interval."""
+    # m = qa ⊗ conj(step)
+    s0, s1, s2, s3 = step[0], -step[1], -step[2], -step[3]
+    m0 = qa[0] * s0 - qa[1] * s1 - qa[2] * s2 - qa[3] * s3
+    m1 = qa[0] * s1 + qa[1] * s0 + qa[2] * s3 - qa[3] * s2
+    m2 = qa[0] * s2 - qa[1] * s3 + qa[2] * s0 + qa[3] * s1
+    m3 = qa[0] * s3 + qa[1] * s2 - qa[2] * s1 + qa[3] * s0
+    # e = m ⊗ conj(qb)
+    b0, b1, b2, b3 = qb[0], -qb[1], -qb[2], -qb[3]
+    e0 = m0 * b0 - m1 * b1 - m2 * b2 - m3 * b3
+    e1 = m0 * b1 + m1 * b0 + m2 * b3 - m3 * b2
+    e2 = m0 * b2 - m1 * b3 + m2 * b0 + m3 * b1
+    e3 = m0 * b3 + m1 * b2 - m2 * b1 + m3 * b0
+    if e0 < 0.0:
+        e0, e1, e2, e3 = -e0, -e1, -e2, -e3
+    sin_half = np.sqrt(e1 * e1 + e2 * e2 + e3 * e3)
+    scale = 2.0 / e0 if sin_half < 1e-9 else 2.0 * np.arctan2(sin_half, e0) / sin_half
+    out[0], out[1], out[2] = scale * e1, scale * e2, scale * e3
 
 
-def _motion_residuals(q: Array, step: Array) -> Array:
-    """Earth-frame residual of each interval, (N-1, 3): Log(q_t ⊗ Exp(-φ_t) ⊗ q_{t-1}*)."""
-    pred = qt.multiply(q[1:], qt.conjugate(step))
-    return qt.to_rotvec(qt.multiply(pred, qt.conjugate(q[:-1])))
+@numba.njit(cache=True)
+def _normal_equations(
+    q: np.ndarray, c: np.ndarray, steps: np.ndarray, w_motion: np.ndarray,
+    meas_ok: np.ndarray, coeffs: np.ndarray, band: np.ndarray, grad: np.ndarray,
+) -> None:
+    """Gauss-Newton normal equations ``band · δ = -grad`` at ``q`` (module docstring).
+
+    q (2, N, 4); c (2, N, 3); steps (2, N-1, 4) the gyroscope's turn of each interval;
+    w_motion (N-1,) each interval's weight (0 across a gap); band (7, 6N) receives the
+    upper band (LAPACK's layout, ``band[6 + i - j, j] = A[i, j]``), grad (6N,) ``Jᵀ W e``.
+    """
+    n = q.shape[1]
+    band[:, :] = 0.0
+    grad[:] = 0.0
+    g = coeffs[C_GRAVITY]
+    w_link = 1.0 / coeffs[C_LINK_VAR]
+    v = np.zeros((2, 3))
+    jac = np.zeros((5, 6))
+    res = np.zeros(5)
+    wts = np.zeros(5)
+    e = np.zeros(3)
+    for k in range(n):
+        col = 6 * k
+        if meas_ok[k]:
+            _rotate_by(q[0, k], c[0, k], v[0])
+            _rotate_by(q[1, k], c[1, k], v[1])
+            mx = 0.5 * (v[0, 0] + v[1, 0])
+            my = 0.5 * (v[0, 1] + v[1, 1])
+            mz = 0.5 * (v[0, 2] + v[1, 2])
+            off = np.sqrt(mx * mx + my * my + mz * mz) - g
+            w_incl = 1.0 / (coeffs[C_INCL_VAR] + coeffs[C_INCL_GAIN] * off * off)
+            for i in range(3):
+                res[i] = v[0, i] - v[1, i]
+                wts[i] = w_link
+            res[3], res[4] = mx, my
+            wts[3], wts[4] = w_incl, w_incl
+            # rows: link = [-[v₁]×, [v₂]×], inclination x, y = rows 0, 1 of -[v_i]×/2
+            for s in range(2):
+                a = 3 * s
+                x, y, z = v[s, 0], v[s, 1], v[s, 2]
+                sign = -1.0 if s == 0 else 1.0
+                jac[0, a], jac[0, a + 1], jac[0, a + 2] = 0.0, -sign * z, sign * y
+                jac[1, a], jac[1, a + 1], jac[1, a + 2] = sign * z, 0.0, -sign * x
+                jac[2, a], jac[2, a + 1], jac[2, a + 2] = -sign * y, sign * x, 0.0
+                jac[3, a], jac[3, a + 1], jac[3, a + 2] = 0.0, 0.5 * z, -0.5 * y
+                jac[4, a], jac[4, a + 1], jac[4, a + 2] = -0.5 * z, 0.0, 0.5 * x
+            for i in range(6):
+                acc = 0.0
+                for r in range(5):
+                    acc += jac[r, i] * wts[r] * res[r]
+                grad[col + i] += acc
+                for j in range(i, 6):
+                    acc = 0.0
+                    for r in range(5):
+                        acc += jac[r, i] * wts[r] * jac[r, j]
+                    band[_BAND + i - j, col + j] += acc
+        if k > 0 and w_motion[k - 1] > 0.0:
+            w = w_motion[k - 1]
+            for s in range(2):
+                _motion_residual(q[s, k], steps[s, k - 1], q[s, k - 1], e)
+                for i in range(3):
+                    d = 3 * s + i
+                    grad[col + d] += w * e[i]
+                    grad[col - 6 + d] -= w * e[i]
+                    band[_BAND, col + d] += w
+                    band[_BAND, col - 6 + d] += w
+                    band[0, col + d] = -w
+    for j in range(6 * n):
+        band[_BAND, j] += 1e-9  # keeps a segment without any measurement solvable
 
 
 def map_refine(
@@ -75,82 +161,38 @@ def map_refine(
     q : (2, N, 4) the starting orientations (the backward filter pass).
     coeffs : the filter's coefficients (:mod:`.kernel`'s ``C_`` slots).
     max_iterations, tolerance_rad : stop after that many iterations or when the largest
-        update is below the tolerance.
+        update of the relative orientation is below the tolerance.
 
     Returns
     -------
     ``(q, iterations, last_step_rad)``: the orientations (2, N, 4), the iterations run and
-    the largest update of the last one.
+    the largest update of the relative orientation in the last one.
     """
     from scipy.linalg import solveh_banded
-
-    from margtrack.joint.kernel import (
-        C_GRAVITY,
-        C_GYR_PREV,
-        C_GYR_VAR,
-        C_INCL_GAIN,
-        C_INCL_VAR,
-        C_LINK_VAR,
-    )
 
     n = t.shape[0]
     q = np.array(q, dtype=np.float64)
     dt = np.diff(t)
-    linked = ~restart[1:]  # interval t-1 -> t is integrated
-    w_motion = np.where(linked, 1.0 / (coeffs[C_GYR_VAR] * np.maximum(dt, 1e-12)), 0.0)
+    w_motion = np.where(~restart[1:], 1.0 / (coeffs[C_GYR_VAR] * np.maximum(dt, 1e-12)), 0.0)
     prev = coeffs[C_GYR_PREV]
-    steps = [qt.from_rotvec((prev * gyr[s, :-1] + (1.0 - prev) * gyr[s, 1:]) * dt[:, None])
-             for s in range(2)]
-    g = coeffs[C_GRAVITY]
-    w_link = np.where(meas_ok, 1.0 / coeffs[C_LINK_VAR], 0.0)
-    # the global heading is free: hold the parent's at the start of every linked segment
-    segment_start = np.flatnonzero(np.concatenate([[True], restart[1:]]))
+    steps = np.stack([qt.from_rotvec((prev * gyr[s, :-1] + (1.0 - prev) * gyr[s, 1:])
+                                     * dt[:, None]) for s in range(2)])
+    segment = np.cumsum(np.concatenate([[False], restart[1:]]))
+    per_segment = np.bincount(segment)
+    band = np.empty((_BAND + 1, 6 * n))
+    grad = np.empty(6 * n)
     iterations, largest = 0, np.inf
     for iterations in range(1, max_iterations + 1):  # noqa: B007
-        v = np.stack([qt.rotate(q[s], c[s]) for s in range(2)])  # (2, N, 3)
-        mean = 0.5 * (v[0] + v[1])
-        off = np.linalg.norm(mean, axis=1) - g
-        w_incl = np.where(meas_ok, 1.0 / (coeffs[C_INCL_VAR] + coeffs[C_INCL_GAIN] * off**2), 0.0)
-        # per-sample Jacobian (6 rows: link, inclination; 6 columns: δ₁, δ₂) and residual
-        jac = np.empty((n, 6, 6))
-        jac[:, :3, :3] = _skew_rows(v[0], -1.0)
-        jac[:, :3, 3:] = _skew_rows(v[1], 1.0)
-        jac[:, 3:, :3] = _skew_rows(v[0], -0.5)
-        jac[:, 3:, 3:] = _skew_rows(v[1], -0.5)
-        res = np.empty((n, 6))
-        res[:, :3] = v[0] - v[1]
-        res[:, 3:] = mean
-        res[:, 5] -= g
-        weights = np.concatenate([np.repeat(w_link[:, None], 3, 1),
-                                  np.repeat(w_incl[:, None], 2, 1), np.zeros((n, 1))], axis=1)
-        wj = jac * weights[:, :, None]
-        blocks = np.einsum("nki,nkj->nij", jac, wj)  # Jᵀ W J, (N, 6, 6)
-        grad = np.einsum("nki,nk->ni", wj, res)  # Jᵀ W e, (N, 6)
-        # motion terms: +I on both diagonal blocks, -I between neighbours
-        for s in range(2):
-            e = _motion_residuals(q[s], steps[s]) * w_motion[:, None]  # W e, (N-1, 3)
-            grad[1:, 3 * s:3 * s + 3] += e
-            grad[:-1, 3 * s:3 * s + 3] -= e
-            for a in range(3):
-                blocks[1:, 3 * s + a, 3 * s + a] += w_motion
-                blocks[:-1, 3 * s + a, 3 * s + a] += w_motion
-        blocks[segment_start, 2, 2] += 1.0
-        idx = np.arange(6)
-        blocks[:, idx, idx] += 1e-9  # keeps a segment without any measurement solvable
-        band = np.zeros((_BAND + 1, 6 * n))
-        cols = 6 * np.arange(n)
-        for b in range(6):
-            for a in range(b + 1):
-                band[_BAND + a - b, cols + b] = blocks[:, a, b]
-        off_diag = np.repeat(-w_motion[:, None], 2, 1)  # (N-1, 2): one per sensor
-        for s in range(2):
-            for a in range(3):
-                band[0, cols[1:] + 3 * s + a] = off_diag[:, s]
-        step = solveh_banded(band, -grad.reshape(-1), lower=False,
-                             check_finite=False).reshape(n, 2, 3)
+        _normal_equations(q, c, steps, w_motion, meas_ok, coeffs, band, grad)
+        step = solveh_banded(band, -grad, lower=False, check_finite=False).reshape(n, 2, 3)
+        # a common turn about the vertical is no change (the gauge): take it out, per
+        # segment, so the parent's mean heading stays where it started
+        turn = np.bincount(segment, step[:, 0, 2]) / per_segment
+        step[:, :, 2] -= turn[segment][:, None]
         for s in range(2):
             q[s] = qt.multiply(qt.from_rotvec(step[:, s]), q[s])
-        largest = float(np.max(np.abs(step)))
+        # the output's change: the child's turn relative to the parent's
+        largest = float(np.max(np.abs(step[:, 1] - step[:, 0])))
         if largest < tolerance_rad:
             break
     return q, iterations, largest
