@@ -20,7 +20,8 @@ uses the dataset's measured ones. A third table repeats the first after fitting 
 constant optical-to-sensor rotations by least squares (``score_aligned``), a check of how
 much of each error is the frames' misalignment. Speed: samples/s of each method over the 9
 trials with the lever arms given (so their estimation is not counted, for any method), best
-of 5 with the calls interleaved, measured in the same run.
+of 7 calls in a row after a warm-up call, measured in the same run. margtrack runs on one
+thread; dfjimu's MAP-acc assembles its system on every core (OpenMP).
 
 Leave-one-trial-out (``--loto``): for each trial, the grid's parameter set (gyroscope noise
 x link noise x gyroscope timing) with the lowest mean RMSE on the other 8, scored on the
@@ -34,7 +35,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import time
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from margtrack import quaternion as qt
+from margtrack.bench.speed import measure
 from margtrack.joint import estimate_lever_arms, pair_inputs, read_dualimu, relative_orientation
 from margtrack.joint.dualimu import DualImuTrial, score, score_aligned
 
@@ -104,25 +105,17 @@ def table(title: str, names: list[str], rows: dict[str, dict[str, float]]) -> No
                                     for m in METHODS))
 
 
-def speed(trials: list[DualImuTrial], repeats: int = 5,
+def speed(trials: list[DualImuTrial], repeats: int = 7,
           methods: tuple[str, ...] = METHODS) -> dict[str, float]:
-    """samples/s of each method over all trials, measured lever arms given, best of
-    ``repeats`` per trial with the methods interleaved."""
+    """samples/s of each method over all trials, measured lever arms given: per trial and
+    method a warm-up call (numba's compile or cache load, imports) and the best of
+    ``repeats`` calls in a row (``margtrack.bench.speed.measure``)."""
     total = dict.fromkeys(methods, 0.0)
     samples = 0
     for trial in trials:
-        calls = {m: call for m, call in runners(trial, trial.lever_arms_m).items()
-                 if m in methods}
-        for call in calls.values():
-            call()  # warm up (numba's compile or cache load, imports)
-        best = dict.fromkeys(methods, np.inf)
-        for _ in range(repeats):
-            for m, call in calls.items():
-                start = time.perf_counter()
-                call()
-                best[m] = min(best[m], time.perf_counter() - start)
+        calls = runners(trial, trial.lever_arms_m)
         for m in methods:
-            total[m] += best[m]
+            total[m] += measure(m, calls[m], trial.parent.n_samples, repeats=repeats).seconds
         samples += trial.parent.n_samples
     return {m: samples / total[m] for m in methods}
 
@@ -190,7 +183,8 @@ def main() -> None:
         print(f"{name:<12}" + " ".join(f"{v:6.1f}" for v in d[0]) + "  | "
               + " ".join(f"{v:6.1f}" for v in d[1]))
     rates = speed(trials)
-    print("\nspeed over the 9 trials (lever arms given; best of 5, same run), samples/s:")
+    print("\nspeed over the 9 trials (lever arms given; best of 7 in a row, same run), "
+          "samples/s:")
     for m in METHODS:
         print(f"  {m:<10}{rates[m]:>14,.0f}")
     results["samples_per_s"] = rates
