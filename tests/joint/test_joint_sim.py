@@ -99,6 +99,28 @@ def test_levelling_turns_the_specific_force_up_about_a_horizontal_axis():
         assert abs(turn[2]) < 1e-9  # about a horizontal axis: the heading is kept
 
 
+def test_block_tridiagonal_solve_matches_a_dense_solve():
+    from margtrack.joint.offline import _solve
+
+    rng = np.random.default_rng(11)
+    n = 7
+    blocks = []
+    for _ in range(n):
+        m = rng.standard_normal((6, 6))
+        blocks.append(m @ m.T + 6 * np.eye(6))
+    off = rng.uniform(0.5, 2.0, n - 1)
+    dense = np.zeros((6 * n, 6 * n))
+    for k in range(n):
+        dense[6 * k:6 * k + 6, 6 * k:6 * k + 6] = blocks[k]
+    for k in range(n - 1):
+        dense[6 * k + np.arange(6), 6 * k + 6 + np.arange(6)] = -off[k]
+        dense[6 * k + 6 + np.arange(6), 6 * k + np.arange(6)] = -off[k]
+    rhs = rng.standard_normal((n, 6))
+    upper = np.triu(np.array(blocks))  # _solve reads the upper triangles only
+    x = _solve(upper, off, rhs)
+    np.testing.assert_allclose(x.ravel(), np.linalg.solve(dense, rhs.ravel()), atol=1e-12)
+
+
 # -- lever arms ------------------------------------------------------------------------------
 
 
