@@ -36,9 +36,9 @@ def joint(
         "--offline", help="MAP over the whole recording (smoother, uses every sample for "
         "each output) instead of the online filter.")] = False,
     lever_arms: Annotated[Path | None, typer.Option(
-        "--lever-arms", help="Known lever arms: JSON {\"parent_m\": [x, y, z], \"child_m\": "
-        "[x, y, z]} (m, joint centre to sensor, each sensor's frame) or an earlier output of "
-        "margtrack joint. Default: estimated from the recordings.")] = None,
+        "--lever-arms", help="Known lever arms: JSON {\"parent_m\": \\[x, y, z], \"child_m\": "
+        "\\[x, y, z]} (m, joint centre to sensor, each sensor's frame) or an earlier output "
+        "of margtrack joint. Default: estimated from the recordings.")] = None,
     param: ParamOption = None,
     rate_hz: Annotated[float | None, typer.Option(
         "--rate-hz", help="Rate of the common time base when the two files' timestamps "
