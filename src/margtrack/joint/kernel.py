@@ -25,13 +25,12 @@ the inclination measurement (independent for equal noise on ``v₁`` and ``v₂`
     incl:  0 = ((v₁ + v₂) / 2)ₓ,ᵧ,      H = rows x, y of [-[v₁]×/2, -[v₂]×/2]
                                         (std incl_noise, grown by |mean| - g)
 
-The inclination measurement is the mean's horizontal part only: its vertical part is how
-hard the joint accelerates up or down, and to first order says nothing about the tilts.
-
 using ``∂(Exp(ε) R̂ c)/∂ε = -[R̂ c]×`` (the columns of ``ε₁_z`` dropped, those of ``ε₂_z``
-taken by ψ). The five rows are applied one at a time (their noise is diagonal, so this
+taken by ψ). The inclination measurement is the mean's horizontal part only: its vertical
+part is how hard the joint accelerates up or down, and to first order says nothing about
+the tilts. The five rows are applied one at a time (their noise is diagonal, so this
 equals the joint update and needs no matrix inverse), then the correction is folded into
-the orientations, ``R̂ ← Exp(δε) R̂``.
+the orientations, ``R̂ ← Exp(δε) R̂``, renormalised once per sample.
 
 The relative heading (rotation about the vertical) is observable only while the joint
 centre accelerates horizontally.
