@@ -74,14 +74,14 @@ class _Placeholder(click.Command):
 
 # each module registers its commands on import, in the order `margtrack --help` lists them
 COMMAND_MODULES = ("inspect", "simulate", "run", "evaluate", "experiment", "bench", "batch", "body",
-                   "plot", "precompile")
+                   "joint", "plot", "precompile")
 for _module in COMMAND_MODULES:
     importlib.import_module(f"margtrack.cli.{_module}")
 
 #: commands that run numba kernels: a notice shows while a kernel compiles (first run);
 #: ``demo`` shows its own, naming each method as it compiles
 COMPILING_COMMANDS = ("run", "evaluate", "tune", "experiment", "body", "bench", "plot",
-                      "batch")
+                      "batch", "joint")
 
 
 def _notice_compilation(typer_app: typer.Typer, names: tuple[str, ...] | None) -> None:
