@@ -243,7 +243,7 @@ def screen_at(coef, st, o, lanes, step, k_ref, time_flags, g0, g1, g2, a0, a1, a
 #: :func:`screen_at` inlined where it is called: the lockstep blocks (``contract_lanes``)
 #: vectorise its loop across sensors only with its body in the loop. Elsewhere it is
 #: called, compiled once for every method.
-screen_at_inline = njit(cache=True, inline="always")(screen_at.py_func)
+screen_at_inline = njit(cache=True, inline="always")(getattr(screen_at, "py_func", screen_at))
 
 
 @njit(cache=True, inline="always")
