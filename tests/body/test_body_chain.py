@@ -111,12 +111,22 @@ def test_joint_names() -> None:
                      "right_shank": "right_knee", "right_foot": "right_ankle"}
 
 
+@pytest.mark.kernel
 def test_bad_input_names_the_joint_and_the_fix(sim, no_mag) -> None:
     with pytest.raises(ValueError, match=r"heading 'north' needs the magnetometers.*"
                                          r"--heading pelvis"):
         body.process_body(no_mag, heading="north", no_mag=True)
     with pytest.raises(ValueError, match=r"offline \(--offline\) .* with --no-mag"):
         body.process_body(no_mag, offline=True)
+    # online, the relative headings are found once the joints move (the walk: from 2 s on),
+    # and this walk stands still only before: no pose to calibrate on
+    axis = pelvis_forward_axis(sim)
+    with pytest.raises(ValueError, match=r"no still 1 s found for the reference pose after "
+                                         r"3\.\d\d s: with --no-mag the online .* use --offline"):
+        body.process_body(no_mag, forward_axis=axis, no_mag=True)
+    with pytest.raises(ValueError, match=r"pose window from 0\.50 s: .* a pose before then "
+                                         r"calibrates with them not yet found; use --offline"):
+        body.process_body(no_mag, forward_axis=axis, pose_window=(0.5, 1.5), no_mag=True)
     # a shank whose thigh has no sensor: no joint to tie it to
     gap = {k: r for k, r in no_mag.items() if k != "left_thigh"}
     with pytest.raises(ValueError, match="left_shank needs left_thigh"):

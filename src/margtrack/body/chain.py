@@ -16,9 +16,12 @@ magnetometer. :func:`chain_orientations`
 So every segment's heading follows its parent's instead of drifting on its own gyroscope,
 and the joint angles (which depend only on relative orientations) are drift-free. The
 online joint filter cannot see the relative heading while the body stands still (gravity
-alone does not fix a rotation about the vertical); it finds it once the joint moves, so a
-reference pose at the start of a recording is better served by the offline estimate
-(``--offline``), which uses the whole recording for every sample.
+alone does not fix a rotation about the vertical); it finds it once the joint moves.
+:attr:`ChainOrientations.settled_s` says from when on every joint has moved for
+:data:`SETTLE_S` (the child sensor turning faster than :data:`MOVING_RAD_S`): a reference
+pose before that would calibrate with relative headings not yet found, so the workflow
+looks for one after it. The offline estimate (``--offline``) uses the whole recording for
+every sample and serves a reference pose at the start.
 """
 
 from __future__ import annotations
@@ -42,7 +45,15 @@ if TYPE_CHECKING:
 
 Array = NDArray[np.float64]
 
-__all__ = ["ChainOrientations", "ConstrainedJoint", "chain_orientations", "joint_name"]
+__all__ = ["MOVING_RAD_S", "SETTLE_S", "ChainOrientations", "ConstrainedJoint",
+           "chain_orientations", "joint_name"]
+
+#: A child sensor turning faster than this (rad/s) moves its joint (the online filter starts
+#: to see the joint's relative heading).
+MOVING_RAD_S = 0.5
+#: Motion the online filter is given to find a joint's relative heading, s (a simulated
+#: walk's knees: within 2 deg one second into the motion).
+SETTLE_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -79,6 +90,9 @@ class ChainOrientations:
     flag_times : per sensor, (M,) s.
     joints : the constrained joints, parents first.
     method, params : the root's estimation method and the parameters it used.
+    settled_s : time on ``t``'s clock from which every joint's relative heading is found:
+        ``t[0]`` offline, else :data:`SETTLE_S` after the last joint started to move
+        (``inf`` when one never moves).
     """
 
     q: Array
@@ -87,6 +101,7 @@ class ChainOrientations:
     joints: tuple[ConstrainedJoint, ...]
     method: str
     params: Mapping[str, Any]
+    settled_s: float
 
 
 def joint_name(skeleton: Skeleton, child: int) -> str:
@@ -162,5 +177,11 @@ def chain_orientations(
         times.append(rel.t)
         joints.append(ConstrainedJoint(name, skeleton.names[p], skeleton.names[i], sensors[p],
                                        sensors[i], rel.lever_arms, rel.method, rel.notes))
+    settled = float(t[0])
+    if not offline:
+        for sensor in sensors[1:]:
+            r = recs[sensor]
+            moving = np.flatnonzero(np.linalg.norm(r.gyr, axis=1) > MOVING_RAD_S)
+            settled = max(settled, float(r.t[moving[0]]) + SETTLE_S if moving.size else np.inf)
     return ChainOrientations(q, tuple(flags), tuple(times), tuple(joints), est.method,
-                             dict(est.params))
+                             dict(est.params), settled)

@@ -255,6 +255,30 @@ def _pose_window(t_rel: Array, q: Array, pose_window: tuple[float, float] | None
     return slice(int(idx[0]), int(idx[-1]) + 1)
 
 
+def _settled_pose_window(t_rel: Array, q: Array, pose_window: tuple[float, float] | None,
+                         still_s: float, max_motion_deg: float, settled_s: float) -> slice:
+    """The pose window of the online ``no_mag`` chain: after every joint's relative heading
+    was found (``settled_s``, s from the start), else refused with the fix."""
+    why = (f"with --no-mag the online joint estimate finds a joint's relative heading only "
+           f"once the joint moves (every joint from {settled_s:.2f} s on), so ")
+    fix = ("use --offline (the whole recording: a pose at the start works), or give a still "
+           "pose after the movement with --pose-window START,END")
+    if pose_window is not None:
+        window = _pose_window(t_rel, q, pose_window, still_s, max_motion_deg)
+        if t_rel[window.start] < settled_s:
+            raise ValueError(f"pose window from {t_rel[window.start]:.2f} s: {why}a pose "
+                             f"before then calibrates with them not yet found; {fix}")
+        return window
+    first = int(np.searchsorted(t_rel, settled_s))
+    try:
+        found = still_window(t_rel[first:], q[first:], still_s, max_motion_deg)
+    except ValueError:
+        raise ValueError(f"no still {still_s:g} s found for the reference pose after "
+                         f"{settled_s:.2f} s: {why}the pose must come after that; {fix}"
+                         ) from None
+    return slice(found.start + first, found.stop + first)
+
+
 def process_body(
     recordings: Mapping[str, Recording],
     mapping: BodyMap | Mapping[str, str] | None = None,
@@ -301,7 +325,9 @@ def process_body(
     notes : notes of the reading to keep with the result (files left unread...).
     no_mag : no magnetometer: the root sensor 6-D, every other segment chained to its
         parent across the joint (:mod:`margtrack.body.chain`); needs heading ``"pelvis"``.
-    offline : with ``no_mag``, the joints' offline (MAP) estimate instead of the online one.
+    offline : with ``no_mag``, the joints' offline (MAP) estimate instead of the online one
+        (which finds a joint's relative heading only once it moves: the pose is then looked
+        for, and must lie, after :attr:`~margtrack.body.chain.ChainOrientations.settled_s`).
     """
     from margtrack import methods
     from margtrack.estimator.flags import Flag, count_flags
@@ -381,20 +407,14 @@ def process_body(
             body_map.forward_axis if body_map is not None else None)
         axis = parse_axis(given if given is not None else DEFAULT_FORWARD_AXIS)
     t_rel = t - t[0]
-    try:
-        window = _pose_window(t_rel, q, pose_window, still_s, max_motion_deg)
-    except ValueError as exc:
-        if not no_mag or offline:
-            raise
-        raise ValueError(f"{exc}; with --no-mag the online joint estimate cannot see a "
-                         "joint's relative heading before the joint moves, so a still start "
-                         "does not look still: --offline estimates it from the whole "
-                         "recording") from None
     if no_mag and not offline:
-        notes.append("online joint estimate (--no-mag without --offline): a joint's relative "
-                     "heading is found only once the joint moves, so a reference pose before "
-                     "the first movement calibrates with it not yet found; --offline uses the "
-                     "whole recording")
+        window = _settled_pose_window(t_rel, q, pose_window, still_s, max_motion_deg,
+                                      chain.settled_s - t[0])
+        notes.append(f"online joint estimate (--no-mag without --offline): calibrated on a "
+                     f"pose after every joint had moved ({chain.settled_s - t[0]:.2f} s on); "
+                     "--offline uses the whole recording and a pose at the start")
+    else:
+        window = _pose_window(t_rel, q, pose_window, still_s, max_motion_deg)
     try:
         cal = calibrate(skeleton, q[window], heading=heading, forward_axis=axis,
                         max_spread_deg=max_spread_deg)
