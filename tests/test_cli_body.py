@@ -196,3 +196,65 @@ def test_units_are_checked_per_sensor(walk, tmp_path: Path) -> None:
     assert result.exit_code == 2 and "--gyr-unit deg/s" in result.output
     ok = _invoke(folder, "-o", tmp_path / "out", "--gyr-unit", "deg/s", "--heading", "north")
     assert ok.exit_code == 0, ok.output
+
+
+def _table(folder: Path) -> tuple[list[str], np.ndarray]:
+    path = folder / "joint_angles.csv"
+    return (path.read_text().splitlines()[0].split(","),
+            np.loadtxt(path, delimiter=",", skiprows=1))
+
+
+@pytest.mark.kernel
+def test_xio_walk_without_magnetometers(xio_folder: Path, tmp_path: Path) -> None:
+    ref = _invoke(xio_folder, "-o", tmp_path / "mag")
+    assert ref.exit_code == 0, ref.output
+    names, with_mag = _table(tmp_path / "mag")
+    chain = [("left_hip", "pelvis", "left_upper_leg"),
+             ("left_knee", "left_upper_leg", "left_lower_leg"),
+             ("left_ankle", "left_lower_leg", "left_foot"),
+             ("right_hip", "pelvis", "right_upper_leg"),
+             ("right_knee", "right_upper_leg", "right_lower_leg"),
+             ("right_ankle", "right_lower_leg", "right_foot")]
+    arm = r"\((-?\d+ ± \d+, ){2}-?\d+ ± \d+\)"
+    for extra in ((), ("--offline",)):
+        out = tmp_path / f"no_mag{'_offline' if extra else ''}"
+        result = _invoke(xio_folder, "-o", out, "--no-mag", *extra)
+        assert result.exit_code == 0, result.output
+        kind = "offline" if extra else "online"
+        assert f"constrained joints ({kind}; no magnetometer): lever arms" in result.output
+        lines = result.output.splitlines()
+        for joint, parent, child in chain:  # parents first, each with both lever arms
+            k = next(i for i, x in enumerate(lines) if x.startswith(f"  {joint} "))
+            assert re.fullmatch(rf"  {joint}\s+{parent}\s+{arm}", lines[k]), lines[k]
+            assert re.fullmatch(rf"\s+{child}\s+{arm}", lines[k + 1]), lines[k + 1]
+            assert re.fullmatch(r"\s+fit residual [\d.]+ m/s² over \d+ samples", lines[k + 2])
+        assert sum(bool(re.search(r"\d\s+not used  ", x)) for x in lines) == 7  # sensor rows
+        assert "magnetometers not used (--no-mag)" in result.output
+        got_names, angles = _table(out)
+        assert got_names == names and angles.shape == with_mag.shape
+        for side in ("left", "right"):
+            col = names.index(f"{side}_knee_flexion (deg)")
+            r = np.corrcoef(angles[:, col], with_mag[:, col])[0, 1]
+            assert r > 0.9, (extra, side, r)  # measured 0.985-0.998
+        if extra:  # the still start calibrates, as with magnetometers; flexion within a few deg
+            assert "calibration on 0.00-0.98 s" in result.output
+            col = names.index("left_knee_flexion (deg)")
+            assert np.sqrt(np.mean((angles[:, col] - with_mag[:, col]) ** 2)) < 3.0  # 1.4
+
+
+@pytest.mark.kernel
+def test_no_mag_bad_input_is_refused_with_the_fix(walk, tmp_path: Path) -> None:
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    result = _invoke(empty, "-o", tmp_path / "out", "--no-mag", "--heading", "north")
+    assert result.exit_code == 2
+    assert "--heading north needs the magnetometers, which --no-mag leaves out" in result.output
+    result = _invoke(empty, "-o", tmp_path / "out", "--offline")
+    assert result.exit_code == 2 and "give it with --no-mag" in result.output
+    # the left thigh's sensor is missing: the shank has no joint to its parent to be tied by
+    folder = _files(tmp_path / "no_thigh", walk, {"pelvis": "pelvis", "left_shank": "left_shank"},
+                    ".h5")
+    result = _invoke(folder, "-o", tmp_path / "out", "--no-mag")
+    assert result.exit_code == 2
+    assert "left_shank needs left_thigh" in result.output, result.output
+    assert not (tmp_path / "out").exists()

@@ -20,7 +20,9 @@
 - The workflow (:mod:`.workflow`, ``margtrack body``): :func:`read_body` reads a
   multi-sensor recording, :func:`read_body_map` a sensor -> segment map, and
   :func:`process_body` filters every sensor, calibrates and returns a :class:`BodyResult`
-  (joint angles, pose, gait, root path, summary, ``write(outdir)``).
+  (joint angles, pose, gait, root path, summary, ``write(outdir)``); with ``no_mag``
+  (``--no-mag``) :func:`chain_orientations` (:mod:`.chain`) estimates the pelvis 6-D and
+  ties every other segment to its parent across the joint (:class:`ConstrainedJoint`).
 
 Arrays are frames first, then segments in the skeleton's order: (N, S, 4) quaternions,
 (N, S, 3) positions in metres, in the skeleton's earth frame (ENU default, or NED).
@@ -28,6 +30,7 @@ Arrays are frames first, then segments in the skeleton's order: (N, S, 4) quater
 
 from __future__ import annotations
 
+from margtrack.body.chain import ConstrainedJoint, chain_orientations
 from margtrack.body.export_bvh import bvh_axes, write_bvh
 from margtrack.body.export_csv import read_joint_angles_csv, write_joint_angles_csv
 from margtrack.body.export_sto import OPENSENSE_NAMES, opensim_axes, read_sto, write_sto
@@ -68,6 +71,7 @@ __all__ = [
     "BodyPose",
     "BodyResult",
     "Calibration",
+    "ConstrainedJoint",
     "JointAngles",
     "RootPath",
     "Segment",
@@ -80,6 +84,7 @@ __all__ = [
     "bvh_axes",
     "calibrate",
     "cardan_xyz",
+    "chain_orientations",
     "dimensions_from_height",
     "joint_angles",
     "normalise_cycles",

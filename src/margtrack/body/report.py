@@ -2,6 +2,7 @@
 
 Calibration spread per sensor (largest angle of a pose-window sample from the sensor's
 mean, deg: how still the pose was held), the sensors' rates, magnetometers and flags, the
+joints ``--no-mag`` constrained with their lever arms (mm ± std), the
 range of motion of every joint angle after the calibration window, knee flexion peaks, the
 gait cycles per side (:func:`margtrack.body.gait.gait_summary_lines`), the root's path
 (start, end, drift and path length over the floor), and the notes (warnings) of
@@ -19,7 +20,7 @@ from margtrack.body.gait import gait_summary_lines
 if TYPE_CHECKING:
     from margtrack.body.workflow import BodyResult
 
-__all__ = ["summary_lines"]
+__all__ = ["constrained_lines", "summary_lines"]
 
 
 def _axis_name(axis: np.ndarray) -> str:
@@ -37,6 +38,26 @@ def _faults_and_states(counts: dict[str, int]) -> str:
     states = {k: v for k, v in counts.items() if Flag[k] & STATE_FLAGS}
     faults = ", ".join(f"{k} {v}" for k, v in counts.items() if k not in states) or "0 faults"
     return "; ".join([faults, *(f"{k} {v}" for k, v in states.items())])
+
+
+def constrained_lines(result: BodyResult) -> list[str]:
+    """The joints ``--no-mag`` constrained, with their lever arms (mm ± one std), or none."""
+    if not result.constrained:
+        return []
+    kind = result.constrained[0].method.removeprefix("joint_")
+    lines = [f"constrained joints ({kind}; no magnetometer): lever arms joint centre to "
+             "sensor, mm ± std, in each sensor's frame (x, y, z)"]
+    for j in result.constrained:
+        arms = j.lever_arms
+        for row, sensor in enumerate((j.parent_sensor, j.child_sensor)):
+            xyz = ", ".join(f"{1000 * r:.0f} ± {1000 * s:.0f}" if np.isfinite(s) else
+                            f"{1000 * r:.0f}" for r, s in zip(arms.r_m[row], arms.std_m[row],
+                                                              strict=True))
+            head = f"  {j.joint:<16}" if row == 0 else f"  {'':<16}"
+            lines.append(f"{head} {sensor:<18} ({xyz})")
+        lines.append(f"  {'':<16} fit residual {arms.residual_m_s2:.2f} m/s² over "
+                     f"{arms.samples} samples")
+    return lines
 
 
 def summary_lines(result: BodyResult) -> list[str]:
@@ -61,8 +82,10 @@ def summary_lines(result: BodyResult) -> list[str]:
         flags = _faults_and_states(r.flag_counts)
         if r.gap_frames:
             flags += f"; {r.gap_frames} frames across gaps"
+        mag = "not used" if result.constrained else f"{100 * r.mag_unusable_share:.0f}%"
         lines.append(f"{r.sensor:<18} {r.segment:<16} {r.rate_hz:7.1f} {spread:10.2f} "
-                     f"{100 * r.mag_unusable_share:11.0f}%  {flags}")
+                     f"{mag:>12}  {flags}")
+    lines += constrained_lines(result)
     lines.append("range of motion after the calibration (deg):")
     lines.append(f"{'joint':<16} {'component':<18} {'min':>7} {'max':>7} {'range':>7}")
     for joint, comp, lo, hi in result.range_of_motion():

@@ -6,7 +6,9 @@
 1. matches sensors to segments (names or a map, :mod:`margtrack.body.mapping`) and builds
    the skeleton of those segments (:meth:`Skeleton.from_segments`);
 2. estimates every sensor's orientation with a margtrack method (``-m``/``-p`` as in
-   ``margtrack run``) on its own timestamps, in the skeleton's earth frame;
+   ``margtrack run``) on its own timestamps, in the skeleton's earth frame; with
+   ``no_mag`` (``--no-mag``) only the root sensor, 6-D, and every other segment chained
+   to its parent across the joint (:mod:`.chain`);
 3. brings the orientations onto one time base by slerp: the span all sensors cover, at
    ``rate_hz`` (default: the slowest sensor's rate, rounded to a whole Hz when within 1 %);
    a frame interpolated across a sensor gap longer than ``max_gap_s`` gets that sensor's
@@ -33,6 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from margtrack.body.chain import ConstrainedJoint, chain_orientations
 from margtrack.body.gait import SideGait, analyse_gait, segment_rates
 from margtrack.body.joints import JointAngles, joint_angles
 from margtrack.body.kinematics import BodyPose, resample_orientations, track
@@ -103,6 +106,8 @@ class BodyResult:
         (the legs with a shank or foot sensor).
     root : the root's path from the foot contacts, or None without both legs (the root
         then stays at ``skeleton.root_position_m``).
+    constrained : with ``no_mag``, the joints that tied each segment to its parent, with
+        their lever arms (:class:`~margtrack.body.chain.ConstrainedJoint`); else empty.
     """
 
     skeleton: Skeleton
@@ -121,6 +126,7 @@ class BodyResult:
     gyr_segment: Array
     gait: Mapping[str, SideGait]
     root: RootPath | None
+    constrained: tuple[ConstrainedJoint, ...] = ()
 
     @property
     def t_rel_s(self) -> Array:
@@ -249,6 +255,30 @@ def _pose_window(t_rel: Array, q: Array, pose_window: tuple[float, float] | None
     return slice(int(idx[0]), int(idx[-1]) + 1)
 
 
+def _settled_pose_window(t_rel: Array, q: Array, pose_window: tuple[float, float] | None,
+                         still_s: float, max_motion_deg: float, settled_s: float) -> slice:
+    """The pose window of the online ``no_mag`` chain: after every joint's relative heading
+    was found (``settled_s``, s from the start), else refused with the fix."""
+    why = (f"with --no-mag the online joint estimate finds a joint's relative heading only "
+           f"once the joint moves (every joint from {settled_s:.2f} s on), so ")
+    fix = ("use --offline (the whole recording: a pose at the start works), or give a still "
+           "pose after the movement with --pose-window START,END")
+    if pose_window is not None:
+        window = _pose_window(t_rel, q, pose_window, still_s, max_motion_deg)
+        if t_rel[window.start] < settled_s:
+            raise ValueError(f"pose window from {t_rel[window.start]:.2f} s: {why}a pose "
+                             f"before then calibrates with them not yet found; {fix}")
+        return window
+    first = int(np.searchsorted(t_rel, settled_s))
+    try:
+        found = still_window(t_rel[first:], q[first:], still_s, max_motion_deg)
+    except ValueError:
+        raise ValueError(f"no still {still_s:g} s found for the reference pose after "
+                         f"{settled_s:.2f} s: {why}the pose must come after that; {fix}"
+                         ) from None
+    return slice(found.start + first, found.stop + first)
+
+
 def process_body(
     recordings: Mapping[str, Recording],
     mapping: BodyMap | Mapping[str, str] | None = None,
@@ -267,6 +297,8 @@ def process_body(
     max_spread_deg: float = 5.0,
     max_gap_s: float = 0.1,
     notes: Iterable[str] = (),
+    no_mag: bool = False,
+    offline: bool = False,
 ) -> BodyResult:
     """Joint angles of a multi-sensor recording (module docstring, steps 1-5).
 
@@ -291,6 +323,11 @@ def process_body(
     max_spread_deg : largest motion of a sensor in the pose window, deg.
     max_gap_s : sensor gaps longer than this flag the interpolated frames ``GAP``, s.
     notes : notes of the reading to keep with the result (files left unread...).
+    no_mag : no magnetometer: the root sensor 6-D, every other segment chained to its
+        parent across the joint (:mod:`margtrack.body.chain`); needs heading ``"pelvis"``.
+    offline : with ``no_mag``, the joints' offline (MAP) estimate instead of the online one
+        (which finds a joint's relative heading only once it moves: the pose is then looked
+        for, and must lie, after :attr:`~margtrack.body.chain.ChainOrientations.settled_s`).
     """
     from margtrack import methods
     from margtrack.estimator.flags import Flag, count_flags
@@ -302,6 +339,12 @@ def process_body(
     if heading == "north" and forward_axis is not None:
         raise ValueError("forward_axis (--forward-axis) gives the heading from the pelvis "
                          "sensor; leave it out with heading 'north', or use heading 'pelvis'")
+    if no_mag and heading == "north":
+        raise ValueError("heading 'north' needs the magnetometers, which --no-mag (no_mag=True) "
+                         "leaves out; use the pelvis heading (--heading pelvis)")
+    if offline and not no_mag:
+        raise ValueError("offline (--offline) chooses the joints' estimate of --no-mag; give "
+                         "it with --no-mag (no_mag=True)")
     body_map = mapping if isinstance(mapping, BodyMap) or mapping is None else BodyMap(mapping)
     pairs, left_out = assign_segments(list(recordings), body_map)
     skeleton = Skeleton.from_segments(
@@ -325,37 +368,35 @@ def process_body(
     param_values = dict(params) if isinstance(params, Mapping) else dict(
         methods.parse_params_items(params))
     methods.create(method, param_values)  # an unknown method or parameter fails here
-    q_list, flag_cols, reports = [], [], []
-    used_params: Mapping[str, Any] = {}
-    method_name = method
-    for sensor, segment in zip(sensors, skeleton.names, strict=True):
-        rec = recs[sensor]
-        try:
-            est = methods.create(method, param_values).run(rec).in_frame(frame)
-        except UnitError as exc:
-            raise exc.prefixed(f"sensor {sensor}: ") from None
-        except ValueError as exc:
-            raise ValueError(f"sensor {sensor}: {exc}") from None
-        used_params, method_name = est.params, est.method
-        q_list.append(resample_orientations(rec.t, est.quat, t))
-        flag_cols.append(_frame_flags(rec.t, est.flags, t, max_gap_s))
-        flags = est.flags if est.flags is not None else np.zeros(rec.n_samples, np.uint16)
-        unusable = 1.0 if rec.mag is None else float(
-            np.mean((flags & int(Flag.MAG_IGNORED)) != 0))
-        reports.append(SensorReport(
-            sensor, segment, rec.n_samples, rec.rate_hz, (float(rec.t[0]), float(rec.t[-1])),
-            count_flags(flags), unusable,
-            int(np.count_nonzero(flag_cols[-1] & int(Flag.GAP)))))
-    q = np.stack(q_list, axis=1)
+    if no_mag:
+        chain = chain_orientations(skeleton, sensors, recs, t, method, param_values, frame,
+                                   offline)
+        q, constrained = chain.q, chain.joints
+        used_params, method_name = chain.params, chain.method
+        flag_cols, reports = [], []
+        for k, (sensor, segment) in enumerate(zip(sensors, skeleton.names, strict=True)):
+            rec, own = recs[sensor], chain.sensor_flags[k]
+            flag_cols.append(_frame_flags(chain.flag_times[k], own, t, max_gap_s))
+            reports.append(SensorReport(
+                sensor, segment, rec.n_samples, rec.rate_hz,
+                (float(rec.t[0]), float(rec.t[-1])), count_flags(own), 1.0,
+                int(np.count_nonzero(flag_cols[-1] & int(Flag.GAP)))))
+        notes.append("magnetometers not used (--no-mag): the pelvis sensor's heading is its "
+                     "gyroscope's, every other segment's follows its parent's across the joint "
+                     f"({'offline' if offline else 'online'} joint estimate)")
+    else:
+        constrained = ()
+        q, flag_cols, reports, used_params, method_name = _independent(
+            sensors, skeleton, recs, t, method, param_values, frame, max_gap_s)
     dead = [r.sensor for r in reports if r.mag_dead]
-    if dead and heading == "north":
+    if dead and heading == "north" and not no_mag:
         raise ValueError(
             f"heading 'north' needs every magnetometer, but {', '.join(dead)} has none that "
             "works (absent, zero, clipped or stuck for most samples: flag MAG_IGNORED); use "
             "the pelvis heading (--heading pelvis)"
         )
     for r in reports:
-        if r.mag_dead:
+        if r.mag_dead and not no_mag:
             notes.append(
                 f"{r.sensor}: magnetometer unusable for {100 * r.mag_unusable_share:.0f} % of "
                 "samples (MAG_IGNORED); its heading is the gyroscope's, so the angles of its "
@@ -366,7 +407,14 @@ def process_body(
             body_map.forward_axis if body_map is not None else None)
         axis = parse_axis(given if given is not None else DEFAULT_FORWARD_AXIS)
     t_rel = t - t[0]
-    window = _pose_window(t_rel, q, pose_window, still_s, max_motion_deg)
+    if no_mag and not offline:
+        window = _settled_pose_window(t_rel, q, pose_window, still_s, max_motion_deg,
+                                      chain.settled_s - t[0])
+        notes.append(f"online joint estimate (--no-mag without --offline): calibrated on a "
+                     f"pose after every joint had moved ({chain.settled_s - t[0]:.2f} s on); "
+                     "--offline uses the whole recording and a pose at the start")
+    else:
+        window = _pose_window(t_rel, q, pose_window, still_s, max_motion_deg)
     try:
         cal = calibrate(skeleton, q[window], heading=heading, forward_axis=axis,
                         max_spread_deg=max_spread_deg)
@@ -392,8 +440,43 @@ def process_body(
                      "foot sensor on each leg")
     result = BodyResult(skeleton, cal, t, q, pose, angles, window, tuple(reports),
                         np.stack(flag_cols, axis=1), method_name, dict(used_params), axis,
-                        tuple(notes), gyr, gait, root)
+                        tuple(notes), gyr, gait, root, constrained)
     return replace(result, notes=result.notes + tuple(_sanity_notes(result)))
+
+
+def _independent(sensors: list[str], skeleton: Skeleton, recs: Mapping[str, Recording],
+                 t: Array, method: str, param_values: Mapping[str, Any], frame: str,
+                 max_gap_s: float
+                 ) -> tuple[Array, list[NDArray[np.uint16]], list[SensorReport],
+                            Mapping[str, Any], str]:
+    """One estimate per sensor with its own magnetometer (the path without ``no_mag``)."""
+    from margtrack import methods
+    from margtrack.estimator.flags import Flag, count_flags
+
+    q_list: list[Array] = []
+    flag_cols: list[NDArray[np.uint16]] = []
+    reports: list[SensorReport] = []
+    used_params: Mapping[str, Any] = {}
+    method_name = method
+    for sensor, segment in zip(sensors, skeleton.names, strict=True):
+        rec = recs[sensor]
+        try:
+            est = methods.create(method, param_values).run(rec).in_frame(frame)
+        except UnitError as exc:
+            raise exc.prefixed(f"sensor {sensor}: ") from None
+        except ValueError as exc:
+            raise ValueError(f"sensor {sensor}: {exc}") from None
+        used_params, method_name = est.params, est.method
+        q_list.append(resample_orientations(rec.t, est.quat, t))
+        flag_cols.append(_frame_flags(rec.t, est.flags, t, max_gap_s))
+        flags = est.flags if est.flags is not None else np.zeros(rec.n_samples, np.uint16)
+        unusable = 1.0 if rec.mag is None else float(
+            np.mean((flags & int(Flag.MAG_IGNORED)) != 0))
+        reports.append(SensorReport(
+            sensor, segment, rec.n_samples, rec.rate_hz, (float(rec.t[0]), float(rec.t[-1])),
+            count_flags(flags), unusable,
+            int(np.count_nonzero(flag_cols[-1] & int(Flag.GAP)))))
+    return np.stack(q_list, axis=1), flag_cols, reports, used_params, method_name
 
 
 def _sanity_notes(result: BodyResult) -> list[str]:

@@ -73,6 +73,15 @@ def body(
         "scale 0.01) or m (import scale 1).")] = "cm",
     force: Annotated[bool, typer.Option(
         "--force", help="Replace output files that already exist.")] = False,
+    no_mag: Annotated[bool, typer.Option(
+        "--no-mag", help="Use no magnetometer: the pelvis sensor 6-D (its heading fixed on "
+        "the reference pose), every other segment tied to its parent across the joint from "
+        "both gyroscopes and accelerometers (lever arms estimated; listed in the summary).")
+    ] = False,
+    offline: Annotated[bool, typer.Option(
+        "--offline", help="With --no-mag: the joints' offline estimate (the whole recording "
+        "for every sample; finds the relative headings in a still reference pose at the "
+        "start) instead of the online filter.")] = False,
     gyr_unit: GyrUnitOption = None,
     acc_unit: AccUnitOption = None,
     mag_unit: MagUnitOption = None,
@@ -87,6 +96,12 @@ def body(
 
     if heading not in ("pelvis", "north"):
         raise ValueError(f"--heading must be 'pelvis' or 'north', got {heading!r}")
+    if no_mag and heading == "north":
+        raise ValueError("--heading north needs the magnetometers, which --no-mag leaves out; "
+                         "use --heading pelvis (the default)")
+    if offline and not no_mag:
+        raise ValueError("--offline chooses the joints' estimate of --no-mag; give it with "
+                         "--no-mag")
     if bvh_unit not in BVH_UNITS:
         raise ValueError(f"--bvh-unit must be cm or m, got {bvh_unit!r}")
     window = _window(pose_window)
@@ -101,7 +116,7 @@ def body(
     result = mt_body.process_body(
         recs, body_map, method, param or (), window, heading,  # type: ignore[arg-type]
         forward_axis=forward_axis, rate_hz=rate_hz, height_m=height_m,
-        align_start=align_start, notes=skipped,
+        align_start=align_start, notes=skipped, no_mag=no_mag, offline=offline,
     )
     for line in result.summary():
         console.print(line, markup=False, highlight=False, soft_wrap=True)
