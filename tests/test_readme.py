@@ -116,7 +116,7 @@ def test_the_python_example_prints_what_margtrack_evaluate_gives(broad_folder, t
     assert stated, "the example says what it prints"
     trial = re.search(r'mt\.io\.read\("([^"]+)"\)', code).group(1)
     method = re.search(r'mt\.create\("([\w-]+)"\)\.run', code).group(1)
-    assert "mask=rec.movement" in code, "scored over the movement samples, as evaluate does"
+    assert "mt.score(est, rec)" in code, "scored over the movement samples, as evaluate does"
 
     cwd = os.getcwd()
     os.chdir(ROOT)
