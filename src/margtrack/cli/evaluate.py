@@ -355,11 +355,16 @@ def cv_table(result: CVResult, loto: CVResult | None = None) -> Table:
     )
     rows = [("defaults", result.default), ("best point", result.best_in_sample),
             *([("leave-one-trial-out", loto.cross_validated)] if loto is not None else []),
-            ("cross-validated", result.cross_validated)]
+            ("leave-one-group-out" if result.by_kind else "cross-validated",
+             result.cross_validated)]
     groups = [g for g in result.cross_validated.groups() if g in ("undisturbed", "disturbed")]
     table.caption = (
-        "defaults, best point: in-sample (chosen on these trials); cross-validated: each "
-        "trial scored with the point best on the other folds; groups: total"
+        "defaults, best point: in-sample (chosen on these trials); "
+        + ("leave-one-trial-out: each trial scored with the point best on the other trials; "
+           "leave-one-group-out: with the point best on the trials of other kinds"
+           if result.by_kind else
+           "cross-validated: each trial scored with the point best on the other folds")
+        + "; groups: total"
     )
     table.add_column("figure", no_wrap=True)
     for col in ("total", "heading", "inclination", *groups):
