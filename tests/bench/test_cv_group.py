@@ -146,6 +146,18 @@ def test_cli_cv_alone_stays_by_trial_and_bad_splits_are_refused(slices):
     assert folds.exit_code != 0 and "--folds splits by trial" in " ".join(folds.output.split())
 
 
+def test_cli_cv_group_needs_the_trials_groups(slices, tmp_path):
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    for f in slices.glob("*.hdf5"):
+        (plain / f.name).symlink_to(f)
+    args = ["tune", str(plain), "-m", "gradient", "-g", "beta=0.005,0.1", "--cv", "group",
+            "--workers", "1"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code != 0
+    assert "needs a folder of trials with trials.json" in " ".join(result.output.split())
+
+
 def test_bench_broad_cv_group_prints_each_kind(broad_folder, tmp_path, monkeypatch):
     from margtrack.bench import grids
 

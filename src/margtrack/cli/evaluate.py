@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     from rich.console import Group
 
     from margtrack.bench.cv import CVResult
+    from margtrack.io.broad import BroadTrial
 
 #: the splits of --cv: leave-one-trial-out (the default) or leave-one-group-out
 CV_SPLITS = ("trial", "group")
@@ -87,16 +88,14 @@ def cv_split(cv_by: str | None) -> str:
 
 
 def kinds_of(
-    folder: Path, trials: Iterable[object], recordings: Iterable[tuple[Recording, object]]
+    folder: Path, trials: Iterable[BroadTrial], recordings: Iterable[tuple[Recording, object]]
 ) -> dict[str, str]:
-    """Recording name -> its trial's kind (margtrack.bench.broad.trial_kinds) for ``--cv group``."""
+    """Recording name -> its trial's kind (margtrack.bench.broad.trial_kinds) for ``--cv group``;
+    ``recordings`` are ``trials`` read, in the same order."""
     from margtrack.bench import broad
 
     by_trial = broad.trial_kinds(folder)
-    return {
-        rec.name: by_trial[t.name]  # type: ignore[attr-defined]
-        for t, (rec, _) in zip(trials, recordings, strict=True)
-    }
+    return {rec.name: by_trial[t.name] for t, (rec, _) in zip(trials, recordings, strict=True)}
 
 
 @app.command()
@@ -221,6 +220,11 @@ def tune(
         raise ValueError("--folds is a cross-validation option: add --cv")
     if folds is not None and split == "group":
         raise ValueError("--folds splits by trial; leave it out with --cv group")
+    if split == "group" and not (path / "trials.json").is_file():
+        raise ValueError(
+            f"--cv group needs a folder of trials with trials.json (their groups); {path} "
+            "has none: use --cv trial"
+        )
     name = methods.get(method).name
     candidates = tuning.parse_grid(grid) if grid else grids.declared_grid(name)
     fixed = dict(methods.parse_params_items(param or ()))
@@ -244,10 +248,6 @@ def tune(
             order = broad.group_order(path)
             kinds = kinds_of(path, trials, recordings) if split == "group" else None
         else:
-            if split == "group":
-                raise ValueError(
-                    "--cv group needs a folder of trials with trials.json (their groups)"
-                )
             kinds = None
             with _trials_folder(path, "tune"):
                 recordings = [(r, ()) for r in read_checked(path, unit_kw)]
