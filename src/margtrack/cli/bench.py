@@ -251,8 +251,8 @@ def cv_comparison_table(results: list[CVResult]) -> Table:
         )
     table.caption = (
         "default, best: mean total on all trials (in-sample); CV: each trial scored with the "
-        "grid point best on the others"
-        + (" (other kinds)" if results and results[0].by_kind else "")
+        "grid point best on the "
+        + ("trials of other kinds" if results and results[0].by_kind else "others")
         + " (total, heading/inclination, undisturbed/disturbed); "
         "folds: how many chose the in-sample best"
     )
