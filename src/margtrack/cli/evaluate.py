@@ -10,9 +10,8 @@ from typing import TYPE_CHECKING, Annotated
 import click
 import typer
 from rich.table import Table
-from typer.core import TyperCommand
 
-from margtrack.cli.app import app, console, friendly_errors
+from margtrack.cli.app import PlainHelpCommand, app, console, friendly_errors
 from margtrack.cli.batch import SchedulerOption, WorkersOption
 from margtrack.cli.options import (
     AccUnitOption,
@@ -40,7 +39,7 @@ if TYPE_CHECKING:
 CV_SPLITS = ("trial", "group")
 
 
-class CVCommand(TyperCommand):
+class CVCommand(PlainHelpCommand):
     """A command whose ``--cv`` flag may name its split: ``--cv group`` (or ``--cv=group``)
     is read as ``--cv --cv-by group``; ``--cv`` alone stays by trial, as before.
 
