@@ -203,7 +203,10 @@ def tune(
     worker per CPU; --workers 1: in this process) or --scheduler tcp://HOST:PORT. With
     --cv every point runs once on every trial; each trial is then scored with the point
     best on the other trials (leave-one-trial-out, or --folds K), and that cross-validated
-    mean is printed next to the in-sample best and the defaults.
+    mean is printed next to the in-sample best and the defaults. With --cv group each kind
+    of trial (trials.json: its disturbance, else its speed and motion) is held out in turn
+    and scored with the point best on the other kinds, per kind and overall, beside
+    leave-one-trial-out.
     """
     from rich.progress import Progress
 
