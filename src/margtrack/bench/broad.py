@@ -24,7 +24,13 @@ __all__ = [
     "evaluate_recordings",
     "format_table",
     "group_order",
+    "trial_kind",
+    "trial_kinds",
 ]
+
+#: the trials.json categories that name a trial's kind: its disturbance if it has one,
+#: else its speed and motion (``slow_rotation``); breaks do not make another kind
+KIND_CATEGORIES = (("disturbance",), ("speed", "motion"))
 
 
 def evaluate_recording(estimator: Estimator, recording: Recording) -> tuple[ErrorSummary, float]:
@@ -104,6 +110,39 @@ def group_order(folder: Path) -> tuple[str, ...]:
     if not index.is_file():
         return ()
     return tuple(g["name"] for g in json.loads(index.read_text()).get("groups", []))
+
+
+def trial_kind(groups: Sequence[str], categories: Mapping[str, str]) -> str:
+    """The kind of a trial in ``groups``, from the ``categories`` (group -> category) of
+    trials.json: its disturbance group(s) (``attached_magnet``), else its speed and motion
+    (``slow_rotation``), else its groups below the top level joined with ``+``, else
+    ``ungrouped``. Cross-validation by group holds out one kind at a time.
+    """
+    for cats in KIND_CATEGORIES:
+        parts = [g for c in cats for g in groups if categories.get(g) == c]
+        if parts:
+            return "_".join(parts)
+    rest = [g for g in groups if g != "all_trials"]
+    return "+".join(rest) if rest else "ungrouped"
+
+
+def trial_kinds(folder: str | Path) -> dict[str, str]:
+    """Trial name -> kind (:func:`trial_kind`) for every trial of the folder's trials.json.
+
+    Raises ``ValueError`` for a folder without trials.json (no groups to hold out).
+    """
+    index = Path(folder) / "trials.json"
+    if not index.is_file():
+        raise ValueError(
+            f"cross-validation by group needs the trials' groups: {folder} has no trials.json "
+            "(use --cv trial, or a BROAD folder)"
+        )
+    data = json.loads(index.read_text())
+    categories = {g["name"]: g.get("category", "") for g in data.get("groups", [])}
+    return {
+        name: trial_kind(trial.get("groups", ()), categories)
+        for name, trial in data.get("trials", {}).items()
+    }
 
 
 def format_table(result: Scores, *, per_group: bool = True) -> Any:

@@ -1,4 +1,5 @@
-"""Cross-validation by trial: the error of a tuned method on trials its tuning did not see.
+"""Cross-validation by trial or by group: the error of a tuned method on trials its tuning did
+not see.
 
 A figure whose parameters were chosen on the same trials it is measured on is in-sample:
 it includes what the choice fitted to those trials. Here each trial is scored with the
@@ -9,8 +10,12 @@ recording is scored with parameters chosen without it:
    distributable with a ``mapper``): the score matrix, points x trials x (total, heading,
    inclination) RMSE in degrees;
 2. the trials are split into folds: leave-one-trial-out (each trial its own fold, the
-   default) or ``K`` folds by trial (trial ``i`` of the folder's order in fold ``i mod K``:
-   deterministic, and it spreads BROAD's ordered groups over the folds);
+   default), ``K`` folds by trial (trial ``i`` of the folder's order in fold ``i mod K``:
+   deterministic, and it spreads BROAD's ordered groups over the folds), or
+   leave-one-group-out (``kinds``: every trial of one kind, such as every attached-magnet
+   trial, held out together, so the choice has seen no trial of that kind: the figure
+   predicts a kind of recording the tuning never met; BROAD's kinds:
+   :func:`margtrack.bench.broad.trial_kinds`);
 3. for each fold the point with the lowest mean total RMSE on the training trials (all
    trials outside the fold) is chosen; ties go to the first point in grid order; a point
    with a NaN figure on a training trial is never chosen;
@@ -43,6 +48,7 @@ __all__ = [
     "choose_point",
     "cross_validate",
     "cross_validate_grid",
+    "fold_of_kinds",
     "fold_of_trials",
     "score_matrix",
 ]
@@ -68,6 +74,21 @@ def fold_of_trials(n_trials: int, folds: int | None = None) -> NDArray[np.int64]
             "folds (or leave --folds out for leave-one-trial-out)"
         )
     return np.arange(n_trials) % int(folds)
+
+
+def fold_of_kinds(kinds: Sequence[str]) -> NDArray[np.int64]:
+    """The fold index (n_trials,) of each trial by its kind: kinds numbered as first seen.
+
+    Raises ``ValueError`` when fewer than 2 kinds are given (nothing would be left to
+    choose on).
+    """
+    order = list(dict.fromkeys(kinds))
+    if len(order) < 2:
+        raise ValueError(
+            "cross-validation by group needs trials of at least 2 kinds (each kind is scored "
+            f"with parameters chosen on the others); got {len(order)}: {', '.join(order)}"
+        )
+    return np.array([order.index(k) for k in kinds], dtype=np.int64)
 
 
 def choose_point(total_deg: NDArray[np.float64], train: NDArray[np.bool_]) -> int:
@@ -102,6 +123,8 @@ class Fold:
     chosen : index of the point in grid order; label : its ``name=value`` label.
     train_total_deg : the chosen point's mean total RMSE on the training trials.
     held_out_total_deg : its mean total RMSE on the held-out trials.
+    kind : the held-out trials' kind (leave-one-group-out), else "".
+    held_out_figures : the held-out trials' mean (total, heading, inclination), deg.
     """
 
     held_out: tuple[str, ...]
@@ -109,6 +132,8 @@ class Fold:
     label: str
     train_total_deg: float
     held_out_total_deg: float
+    kind: str = ""
+    held_out_figures: tuple[float, float, float] = (np.nan, np.nan, np.nan)
 
 
 @dataclass(frozen=True)
@@ -118,7 +143,8 @@ class CVResult:
     cross_validated : each trial scored with its fold's choice (``Scores``; its per-trial
     ``params`` are in ``chosen_by_trial``); best_in_sample : the point best on all trials;
     default : the defaults on the same trials (None if not evaluated); folds : one
-    :class:`Fold` each; n_folds : their number (the trial count for leave-one-trial-out).
+    :class:`Fold` each; n_folds : their number (the trial count for leave-one-trial-out);
+    by_kind : True for leave-one-group-out (each fold one kind of trial, ``Fold.kind``).
     """
 
     method: str
@@ -130,6 +156,7 @@ class CVResult:
     best_in_sample: Scores
     best_index: int
     chosen_by_trial: Mapping[str, str]
+    by_kind: bool = False
 
     @property
     def default(self) -> Scores | None:
@@ -147,7 +174,9 @@ class CVResult:
         return len({f.chosen for f in self.folds})
 
     def split_name(self) -> str:
-        """``leave-one-trial-out`` or ``K folds by trial``."""
+        """``leave-one-trial-out``, ``K folds by trial`` or ``leave-one-group-out (K groups)``."""
+        if self.by_kind:
+            return f"leave-one-group-out ({self.n_folds} groups)"
         return "leave-one-trial-out" if self.leave_one_out else f"{self.n_folds} folds by trial"
 
     def to_json(self) -> dict[str, Any]:
@@ -179,6 +208,11 @@ class CVResult:
             },
             "folds": [
                 {
+                    **({"group": f.kind} if self.by_kind else {}),
+                    **(
+                        {"held_out_figures": dict(zip(KEYS, f.held_out_figures, strict=True))}
+                        if self.by_kind else {}
+                    ),
                     "held_out": list(f.held_out),
                     "chosen": f.label,
                     "params": dict(self.grid.results[f.chosen].params),
@@ -191,17 +225,34 @@ class CVResult:
         }
 
 
-def cross_validate_grid(grid: GridScores, folds: int | None = None) -> CVResult:
+def _folds(
+    names: Sequence[str], folds: int | None, kinds: Mapping[str, str] | None
+) -> NDArray[np.int64]:
+    """The fold of each trial named in ``names``: by ``kinds`` when given, else by trial."""
+    if kinds is None:
+        return fold_of_trials(len(names), folds)
+    if folds is not None:
+        raise ValueError("--folds splits by trial; leave it out with --cv group")
+    missing = [n for n in names if n not in kinds]
+    if missing:
+        raise ValueError(f"no kind (group) for trial(s) {', '.join(missing)}")
+    return fold_of_kinds([kinds[n] for n in names])
+
+
+def cross_validate_grid(
+    grid: GridScores, folds: int | None = None, kinds: Mapping[str, str] | None = None
+) -> CVResult:
     """Cross-validate an evaluated grid: a choice per fold, each trial scored with it.
 
     ``folds`` None is leave-one-trial-out; an int K splits the trials (in their order) into
-    K folds, trial i in fold i mod K. See the module docstring.
+    K folds, trial i in fold i mod K. ``kinds`` (trial name -> kind) holds out each kind in
+    turn instead (leave-one-group-out; not with ``folds``). See the module docstring.
     """
     if not grid.results:
         raise ValueError("the grid has no evaluated point")
     figures = score_matrix(grid)
     trials = grid.results[0].trials
-    fold = fold_of_trials(len(trials), folds)
+    fold = _folds([t.name for t in trials], folds, kinds)
     n_folds = int(fold.max()) + 1
     total = figures[:, :, 0]
     picked = np.empty(len(trials), dtype=np.int64)
@@ -217,6 +268,8 @@ def cross_validate_grid(grid: GridScores, folds: int | None = None) -> CVResult:
                 grid.labels[c],
                 float(total[c, ~test].mean()),
                 float(total[c, test].mean()),
+                "" if kinds is None else kinds[trials[int(np.argmax(test))].name],
+                tuple(float(x) for x in figures[c, test].mean(axis=0)),  # type: ignore[arg-type]
             )
         )
     rows = tuple(grid.results[int(picked[j])].trials[j] for j in range(len(trials)))
@@ -237,6 +290,7 @@ def cross_validate_grid(grid: GridScores, folds: int | None = None) -> CVResult:
         grid.results[best],
         best,
         {t.name: grid.labels[int(picked[j])] for j, t in enumerate(trials)},
+        kinds is not None,
     )
 
 
@@ -246,6 +300,7 @@ def cross_validate(
     recordings: Sequence[tuple[Recording, tuple[str, ...]]],
     *,
     folds: int | None = None,
+    kinds: Mapping[str, str] | None = None,
     fixed: Mapping[str, Any] | None = None,
     group_order: Sequence[str] = (),
     progress: Callable[[str], None] | None = None,
@@ -253,12 +308,14 @@ def cross_validate(
 ) -> CVResult:
     """Evaluate ``grid`` (and the defaults) on every recording once, then cross-validate.
 
-    The folds are checked before anything runs. ``fixed``, ``group_order``, ``progress``
-    and ``mapper`` as in :func:`margtrack.bench.tune.tune`.
+    The folds are checked before anything runs. ``folds`` and ``kinds`` as in
+    :func:`cross_validate_grid`; ``fixed``, ``group_order``, ``progress`` and ``mapper`` as
+    in :func:`margtrack.bench.tune.tune`. The same grid by another split costs no run:
+    ``cross_validate_grid(result.grid, ...)``.
     """
-    fold_of_trials(len(recordings), folds)  # bad --folds or too few trials: fail first
+    _folds([r.name for r, _ in recordings], folds, kinds)  # bad split: fail first
     scored = evaluate_grid(
         method, grid, recordings, fixed=fixed, group_order=group_order, progress=progress,
         mapper=mapper, with_default=True,
     )
-    return cross_validate_grid(scored, folds)
+    return cross_validate_grid(scored, folds, kinds)

@@ -10,6 +10,7 @@ from rich.table import Table
 
 from margtrack.cli.app import app, console, friendly_errors, warn
 from margtrack.cli.batch import SchedulerOption, WorkersOption
+from margtrack.cli.evaluate import CVByOption, CVCommand, cv_split
 
 if TYPE_CHECKING:
     from margtrack.bench.cv import CVResult
@@ -40,7 +41,7 @@ bench_app = typer.Typer(
 app.add_typer(bench_app, name="bench")
 
 
-@bench_app.command("broad")
+@bench_app.command("broad", cls=CVCommand)
 @friendly_errors
 def bench_broad(
     folder: Annotated[Path, typer.Argument(help="Folder of BROAD trials.")] = Path(
@@ -65,10 +66,12 @@ def bench_broad(
         bool,
         typer.Option(
             "--cv/--no-cv",
-            help="Also cross-validate every method with a declared grid (leave-one-trial-out; "
-            "one run of each grid point on every trial: minutes).",
+            help="Also cross-validate every method with a declared grid (--cv or --cv trial: "
+            "leave-one-trial-out; --cv group: leave-one-group-out; one run of each grid "
+            "point on every trial: minutes).",
         ),
     ] = True,
+    cv_by: CVByOption = None,
     workers: WorkersOption = None,
     scheduler: SchedulerOption = None,
 ) -> None:
@@ -76,8 +79,11 @@ def bench_broad(
 
     With --cv (the default) each method with a declared grid (margtrack.bench.grids) is
     also cross-validated: every trial scored with the grid point best on the other 15,
-    printed next to the in-sample figure. Its grid points run like `margtrack tune`'s
-    (--workers / --scheduler).
+    printed next to the in-sample figure. With --cv group each kind of trial (trials.json:
+    its disturbance, else its speed and motion) is held out in turn instead, and scored
+    with the grid point best on the other kinds, printed per kind beside
+    leave-one-trial-out. Its grid points run like `margtrack tune`'s (--workers /
+    --scheduler).
     """
     import time
 
@@ -88,6 +94,9 @@ def bench_broad(
     from margtrack.bench import external as ext
     from margtrack.bench.runner import Method
 
+    split = cv_split(cv_by)
+    if cv_by is not None and not cv:
+        raise ValueError("--cv-by is a cross-validation option: leave out --no-cv")
     names = method or [m for m in methods.available() if methods.get(m).uses_gyr]
     runs: list[tuple[str, Method]] = []
     for name in names:
@@ -109,6 +118,12 @@ def bench_broad(
                 "madgwick"
             )
     trials = io.broad_trials(folder)
+    if cv and split == "group":
+        from margtrack.bench import broad
+        from margtrack.bench.cv import fold_of_kinds
+
+        kind_of = broad.trial_kinds(folder)  # a folder without groups fails before any run
+        fold_of_kinds([kind_of[t.name] for t in trials])
     with Progress(transient=True) as bar:
         task = bar.add_task("reading", total=len(trials) * (1 + len(runs)))
         recordings = []
@@ -141,7 +156,12 @@ def bench_broad(
         # the scoring (the cv runs every grid point like that once)
         spare = max(0.0, wall_s - sum(m.seconds for m in result.methods)) / len(result.methods)
         seconds = {m.method: m.seconds + spare for m in result.methods}
-        _cross_validate_all(names, recordings, seconds, folder, workers, scheduler)
+        kinds = None
+        if split == "group":
+            from margtrack.cli.evaluate import kinds_of
+
+            kinds = kinds_of(folder, trials, recordings)
+        _cross_validate_all(names, recordings, seconds, folder, workers, scheduler, kinds)
 
 
 def _cross_validate_all(
@@ -151,8 +171,10 @@ def _cross_validate_all(
     folder: Path,
     workers: int | None,
     scheduler: str | None,
+    kinds: dict[str, str] | None = None,
 ) -> None:
-    """Cross-validate each of ``names`` with a declared grid and print the table."""
+    """Cross-validate each of ``names`` with a declared grid and print the table; by
+    ``kinds`` (recording name -> kind) also leave-one-group-out, per kind."""
     import itertools
     import time
 
@@ -161,6 +183,7 @@ def _cross_validate_all(
     from margtrack.batch.cluster import mapper_of, open_pool
     from margtrack.bench import broad, grids
     from margtrack.bench import cv as crossval
+    from margtrack.cli.evaluate import group_folds_table
     from margtrack.methods import get
 
     tuned = [n for n in names if grids.has_grid(get(n).name)]
@@ -194,6 +217,11 @@ def _cross_validate_all(
                 group_order=broad.group_order(folder), progress=progress, mapper=mapper,
             ))
     console.print(cv_comparison_table(results))
+    if kinds is not None:
+        by_group = [crossval.cross_validate_grid(r.grid, kinds=kinds) for r in results]
+        console.print(cv_comparison_table(by_group))
+        for r, g in zip(results, by_group, strict=True):
+            console.print(group_folds_table(g, r))
     console.print(
         f"cross-validation took {time.perf_counter() - start:.0f} s ({pool.description}). "
         "cross-validated: each trial scored with the grid point best on the other trials."
@@ -202,7 +230,8 @@ def _cross_validate_all(
 
 def cv_comparison_table(results: list[CVResult]) -> Table:
     """Per method: defaults and best point in-sample, cross-validated means, stability."""
-    table = Table(title="BROAD: in-sample vs leave-one-trial-out cross-validated (deg)")
+    split = results[0].split_name() if results else "leave-one-trial-out"
+    table = Table(title=f"BROAD: in-sample vs {split} cross-validated (deg)")
     table.add_column("method", no_wrap=True)
     for col in ("default", "best", "CV", "CV h/i", "CV u/d", "folds"):
         table.add_column(col, justify="right", no_wrap=True)
@@ -222,7 +251,9 @@ def cv_comparison_table(results: list[CVResult]) -> Table:
         )
     table.caption = (
         "default, best: mean total on all trials (in-sample); CV: each trial scored with the "
-        "grid point best on the others (total, heading/inclination, undisturbed/disturbed); "
+        "grid point best on the "
+        + ("trials of other kinds" if results and results[0].by_kind else "others")
+        + " (total, heading/inclination, undisturbed/disturbed); "
         "folds: how many chose the in-sample best"
     )
     return table

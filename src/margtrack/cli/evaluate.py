@@ -7,10 +7,11 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
+import click
 import typer
 from rich.table import Table
 
-from margtrack.cli.app import app, console, friendly_errors
+from margtrack.cli.app import PlainHelpCommand, app, console, friendly_errors
 from margtrack.cli.batch import SchedulerOption, WorkersOption
 from margtrack.cli.options import (
     AccUnitOption,
@@ -29,7 +30,71 @@ from margtrack.cli.options import (
 from margtrack.recording import Recording
 
 if TYPE_CHECKING:
+    from rich.console import Group
+
     from margtrack.bench.cv import CVResult
+    from margtrack.io.broad import BroadTrial
+
+#: the splits of --cv: leave-one-trial-out (the default) or leave-one-group-out
+CV_SPLITS = ("trial", "group")
+
+
+class CVCommand(PlainHelpCommand):
+    """A command whose ``--cv`` flag may name its split: ``--cv group`` (or ``--cv=group``)
+    is read as ``--cv --cv-by group``; ``--cv`` alone stays by trial, as before.
+
+    Typer's options take a value always or never, so the optional value is read here,
+    before click parses the line: only the words of :data:`CV_SPLITS` right after ``--cv``.
+    """
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        out: list[str] = []
+        i = 0
+        while i < len(args):
+            arg = args[i]
+            if arg == "--":
+                out += args[i:]
+                break
+            if arg.startswith("--cv="):
+                out += ["--cv", "--cv-by", arg.partition("=")[2]]
+            elif arg == "--cv" and i + 1 < len(args) and args[i + 1] in CV_SPLITS:
+                out += ["--cv", "--cv-by", args[i + 1]]
+                i += 1
+            else:
+                out.append(arg)
+            i += 1
+        return super().parse_args(ctx, out)
+
+
+CVByOption = Annotated[
+    str | None,
+    typer.Option(
+        "--cv-by",
+        help="The split of --cv: trial (leave-one-trial-out) or group (hold out every trial "
+        "of one kind at a time, from trials.json; also printed: leave-one-trial-out). "
+        "`--cv group` is short for `--cv --cv-by group`.",
+    ),
+]
+
+
+def cv_split(cv_by: str | None) -> str:
+    """``trial`` or ``group`` from ``--cv-by`` (None: trial); anything else is refused."""
+    if cv_by is None:
+        return "trial"
+    if cv_by not in CV_SPLITS:
+        raise ValueError(f"--cv takes trial or group, got {cv_by!r}")
+    return cv_by
+
+
+def kinds_of(
+    folder: Path, trials: Iterable[BroadTrial], recordings: Iterable[tuple[Recording, object]]
+) -> dict[str, str]:
+    """Recording name -> its trial's kind (margtrack.bench.broad.trial_kinds) for ``--cv group``;
+    ``recordings`` are ``trials`` read, in the same order."""
+    from margtrack.bench import broad
+
+    by_trial = broad.trial_kinds(folder)
+    return {rec.name: by_trial[t.name] for t, (rec, _) in zip(trials, recordings, strict=True)}
 
 
 @app.command()
@@ -89,7 +154,7 @@ def evaluate(
         console.print(f"wrote {json_out}")
 
 
-@app.command()
+@app.command(cls=CVCommand)
 @friendly_errors
 def tune(
     path: Annotated[Path, typer.Argument(help="A folder of BROAD trials (or one recording).")],
@@ -107,9 +172,11 @@ def tune(
         bool,
         typer.Option(
             "--cv/--no-cv",
-            help="Cross-validate by trial: score each trial with the point best on the others.",
+            help="Cross-validate: score each trial with the point best on the other trials "
+            "(--cv or --cv trial: leave-one-trial-out; --cv group: leave-one-group-out).",
         ),
     ] = False,
+    cv_by: CVByOption = None,
     folds: Annotated[
         int | None,
         typer.Option(help="With --cv: K folds by trial (trial i in fold i mod K) instead of "
@@ -136,7 +203,10 @@ def tune(
     worker per CPU; --workers 1: in this process) or --scheduler tcp://HOST:PORT. With
     --cv every point runs once on every trial; each trial is then scored with the point
     best on the other trials (leave-one-trial-out, or --folds K), and that cross-validated
-    mean is printed next to the in-sample best and the defaults.
+    mean is printed next to the in-sample best and the defaults. With --cv group each kind
+    of trial (trials.json: its disturbance, else its speed and motion) is held out in turn
+    and scored with the point best on the other kinds, per kind and overall, beside
+    leave-one-trial-out.
     """
     from rich.progress import Progress
 
@@ -146,8 +216,17 @@ def tune(
     from margtrack.bench import cv as crossval
     from margtrack.bench import tune as tuning
 
+    split = cv_split(cv_by)
+    cv = cv or cv_by is not None
     if folds is not None and not cv:
         raise ValueError("--folds is a cross-validation option: add --cv")
+    if folds is not None and split == "group":
+        raise ValueError("--folds splits by trial; leave it out with --cv group")
+    if split == "group" and not (path / "trials.json").is_file():
+        raise ValueError(
+            f"--cv group needs a folder of trials with trials.json (their groups); {path} "
+            "has none: use --cv trial"
+        )
     name = methods.get(method).name
     candidates = tuning.parse_grid(grid) if grid else grids.declared_grid(name)
     fixed = dict(methods.parse_params_items(param or ()))
@@ -169,13 +248,17 @@ def tune(
                 for t in trials
             ]
             order = broad.group_order(path)
+            kinds = kinds_of(path, trials, recordings) if split == "group" else None
         else:
+            kinds = None
             with _trials_folder(path, "tune"):
                 recordings = [(r, ()) for r in read_checked(path, unit_kw)]
             order = ()
         bar.remove_task(loading)
         if cv:
             crossval.fold_of_trials(len(recordings), folds)  # before any run
+            if kinds is not None:
+                crossval.fold_of_kinds(list(kinds.values()))
         task = bar.add_task(f"tuning {method}", total=n_points + extra)
 
         def progress(point: str) -> None:
@@ -188,7 +271,7 @@ def tune(
             mapper = None if pool.client is None else mapper_of(pool)
             if cv:
                 cv_result = crossval.cross_validate(
-                    method, candidates, recordings, folds=folds, fixed=fixed,
+                    method, candidates, recordings, folds=folds, kinds=kinds, fixed=fixed,
                     group_order=order, progress=progress, mapper=mapper,
                 )
                 ranked = sorted(
@@ -219,14 +302,19 @@ def tune(
         if json_out is not None:
             _write_json(json_out, result.best.to_json())
         return
-    console.print(cv_table(cv_result))
-    console.print(folds_table(cv_result))
+    # by group, leave-one-trial-out beside it: the same grid, another split, no run
+    loto = crossval.cross_validate_grid(cv_result.grid) if cv_result.by_kind else None
+    console.print(cv_table(cv_result, loto))
+    console.print(group_folds_table(cv_result, loto) if loto else folds_table(cv_result))
     console.print(
         f"stability: {cv_result.n_distinct_choices} distinct choice(s) over "
         f"{cv_result.n_folds} folds; {cv_result.stability:.0%} chose the in-sample best"
     )
     if json_out is not None:
-        _write_json(json_out, cv_result.to_json())
+        data = cv_result.to_json()
+        if loto is not None:
+            data["leave_one_trial_out"] = loto.to_json()["cross_validated"]
+        _write_json(json_out, data)
 
 
 @contextlib.contextmanager
@@ -258,8 +346,9 @@ def _write_json(path: Path, data: object) -> None:
     console.print(f"wrote {path}")
 
 
-def cv_table(result: CVResult) -> Table:
-    """Defaults, in-sample best and cross-validated means (deg), overall and per group."""
+def cv_table(result: CVResult, loto: CVResult | None = None) -> Table:
+    """Defaults, in-sample best and cross-validated means (deg), overall and per group;
+    ``loto``: the same grid's leave-one-trial-out figure, one more row."""
     from margtrack.bench.runner import KEYS
 
     table = Table(
@@ -267,11 +356,17 @@ def cv_table(result: CVResult) -> Table:
         "mean RMSE over movement samples (deg)"
     )
     rows = [("defaults", result.default), ("best point", result.best_in_sample),
-            ("cross-validated", result.cross_validated)]
+            *([("leave-one-trial-out", loto.cross_validated)] if loto is not None else []),
+            ("leave-one-group-out" if result.by_kind else "cross-validated",
+             result.cross_validated)]
     groups = [g for g in result.cross_validated.groups() if g in ("undisturbed", "disturbed")]
     table.caption = (
-        "defaults, best point: in-sample (chosen on these trials); cross-validated: each "
-        "trial scored with the point best on the other folds; groups: total"
+        "defaults, best point: in-sample (chosen on these trials); "
+        + ("leave-one-trial-out: each trial scored with the point best on the other trials; "
+           "leave-one-group-out: with the point best on the trials of other kinds"
+           if result.by_kind else
+           "cross-validated: each trial scored with the point best on the other folds")
+        + "; groups: total"
     )
     table.add_column("figure", no_wrap=True)
     for col in ("total", "heading", "inclination", *groups):
@@ -298,3 +393,33 @@ def folds_table(result: CVResult) -> Table:
             f"{f.held_out_total_deg:.2f}",
         )
     return table
+
+
+def group_folds_table(result: CVResult, loto: CVResult) -> Group:
+    """Leave-one-group-out, per held-out kind: its figures (deg) with the point chosen
+    without it, the same trials' leave-one-trial-out and in-sample best totals; then the
+    point each kind's fold chose, one line each."""
+    from rich.console import Group
+
+    loto_total = {t.name: t.total_rmse_deg for t in loto.cross_validated.trials}
+    best_total = {t.name: t.total_rmse_deg for t in result.best_in_sample.trials}
+    table = Table(title=f"{result.method}: each kind of trial scored with the point chosen "
+                  "without it (deg)")
+    table.add_column("held out (trials)", no_wrap=True)
+    for col in ("train", "total", "heading", "incl.", "LOTO", "best"):
+        table.add_column(col, justify="right", no_wrap=True)
+    for f in result.folds:
+        total, heading, inclination = f.held_out_figures
+        table.add_row(
+            f"{f.kind} ({len(f.held_out)})", f"{f.train_total_deg:.2f}",
+            f"{total:.2f}", f"{heading:.2f}", f"{inclination:.2f}",
+            f"{sum(loto_total[n] for n in f.held_out) / len(f.held_out):.2f}",
+            f"{sum(best_total[n] for n in f.held_out) / len(f.held_out):.2f}",
+        )
+    table.caption = (
+        "train: the chosen point's mean total on the other groups; total, heading, incl.: "
+        "its mean on the held-out group's trials; LOTO: their total when each is scored "
+        "with the point best on the other trials (its own group's included); best: their "
+        "total with the point best on all trials (in-sample)"
+    )
+    return Group(table, *(f"without {f.kind}: chose {f.label}" for f in result.folds))

@@ -4,6 +4,7 @@
   and the true gyro signal :func:`body_rate`;
 - :mod:`~margtrack.sim.sensor_model`: :class:`SensorErrors`, one triad's error model;
 - :mod:`~margtrack.sim.disturbances`: earth-frame magnetic disturbances;
+- :mod:`~margtrack.sim.dipole`: a magnet carried by the sensor (body-frame field);
 - :mod:`~margtrack.sim.simulate`: :func:`simulate` and :func:`simulate_default`, which
   return a :class:`margtrack.recording.Recording`.
 
@@ -16,7 +17,9 @@ Example: 000's roll excursions seen by a noisy sensor in NED::
                        gyr_errors=sim.SensorErrors.mems_gyr(), seed=1)
 """
 
+from margtrack.sim.dipole import AttachedDipole, attached_dipole, dipole_field_ut
 from margtrack.sim.disturbances import (
+    BodyMagDisturbance,
     MagDisturbance,
     MagnetPass,
     RotatingField,
@@ -50,6 +53,8 @@ __all__ = [
     "DEFAULT_DIP_DEG",
     "DEFAULT_FIELD_UT",
     "MOTIONS",
+    "AttachedDipole",
+    "BodyMagDisturbance",
     "Hold",
     "MagDisturbance",
     "MagnetPass",
@@ -58,8 +63,10 @@ __all__ = [
     "SensorErrors",
     "Trajectory",
     "VerticalTilt",
+    "attached_dipole",
     "body_rate",
     "constant_rotation",
+    "dipole_field_ut",
     "limb_swing",
     "magnet_pass",
     "random_motion",

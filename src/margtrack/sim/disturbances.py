@@ -6,13 +6,15 @@ undisturbed reference ``reference_ut`` (3,) before rotating into the body frame.
 frame means the disturbance is fixed in the room, like the ferrous objects of 002 III-C
 and the magnet of 000's disturbance test, not carried by the sensor. Linear-acceleration
 disturbances are trajectories (``random_motion(translation_m=...)``, ``limb_swing``).
+A field carried by the sensor instead (:class:`BodyMagDisturbance`, a magnet attached to
+it) is added in the body frame: :mod:`margtrack.sim.dipole`.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -25,6 +27,7 @@ from margtrack.sim._validate import unit_axis as _unit_axis
 Array = NDArray[np.float64]
 
 __all__ = [
+    "BodyMagDisturbance",
     "MagDisturbance",
     "MagnetPass",
     "RotatingField",
@@ -40,6 +43,16 @@ class MagDisturbance(Protocol):
 
     def earth_field_ut(self, t_s: Array, reference_ut: Array, frame: str) -> Array:
         """Additive field (N, 3), µT, earth frame, at times ``t_s`` (N,) s."""
+        ...
+
+
+@runtime_checkable
+class BodyMagDisturbance(Protocol):
+    """Anything that gives an additive body-frame magnetic field over time: a field carried
+    by the sensor, such as a magnet attached to it (:mod:`margtrack.sim.dipole`)."""
+
+    def body_field_ut(self, t_s: Array) -> Array:
+        """Additive field (N, 3), µT, body frame, at times ``t_s`` (N,) s."""
         ...
 
 

@@ -4,11 +4,12 @@ Measurement model (one convention, the library's: ``q`` body-to-earth)::
 
     gyr = gyr_errors(body_rate(trajectory))                                    rad/s, body
     acc = acc_errors(rotate_inverse(q, acc_lin + gravity_reference(frame, g)))  m/s², body
-    mag = mag_errors(rotate_inverse(q, mag_reference(frame, dip, F) + Σ d(t)))  µT, body
+    mag = mag_errors(rotate_inverse(q, mag_reference(frame, dip, F) + Σ d(t)) + Σ b(t))  µT, body
 
-where ``d(t)`` are the earth-frame magnetic disturbances. Noise comes from
-``numpy.random.default_rng(seed)``, drawn in a fixed order: gyr, acc, mag (two (N, 3)
-blocks each, see :meth:`SensorErrors.apply`).
+where ``d(t)`` are the earth-frame magnetic disturbances (fixed in the room) and ``b(t)``
+the body-frame ones (carried by the sensor: :class:`~margtrack.sim.dipole.AttachedDipole`).
+Noise comes from ``numpy.random.default_rng(seed)``, drawn in a fixed order: gyr, acc,
+mag (two (N, 3) blocks each, see :meth:`SensorErrors.apply`).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from margtrack import quaternion as qt
 from margtrack.frames import STANDARD_GRAVITY_M_S2, check_frame, gravity_reference, mag_reference
 from margtrack.recording import Recording
 from margtrack.sim._validate import check_seed as _check_seed
-from margtrack.sim.disturbances import MagDisturbance
+from margtrack.sim.disturbances import BodyMagDisturbance, MagDisturbance
 from margtrack.sim.sensor_model import SensorErrors
 from margtrack.sim.trajectories import (
     Trajectory,
@@ -50,7 +51,7 @@ DEFAULT_DIP_DEG = 60.0
 DEFAULT_FIELD_UT = 50.0
 
 
-def _describe(disturbance: MagDisturbance) -> dict[str, Any]:
+def _describe(disturbance: MagDisturbance | BodyMagDisturbance) -> dict[str, Any]:
     if dataclasses.is_dataclass(disturbance) and not isinstance(disturbance, type):
         return {"type": type(disturbance).__name__, **dataclasses.asdict(disturbance)}
     return {"type": type(disturbance).__name__, "repr": repr(disturbance)}
@@ -64,7 +65,7 @@ def simulate(
     gyr_errors: SensorErrors | None = None,
     acc_errors: SensorErrors | None = None,
     mag_errors: SensorErrors | None = None,
-    mag_disturbances: Sequence[MagDisturbance] = (),
+    mag_disturbances: Sequence[MagDisturbance | BodyMagDisturbance] = (),
     gravity_m_s2: float = STANDARD_GRAVITY_M_S2,
     seed: int = 0,
     with_mag: bool = True,
@@ -82,7 +83,9 @@ def simulate(
         the reference field, :func:`margtrack.frames.mag_reference`.
     gyr_errors, acc_errors, mag_errors : error models; ``None`` is a perfect sensor. The
         noise rate is the trajectory's median sample rate.
-    mag_disturbances : earth-frame additive fields (:mod:`margtrack.sim.disturbances`).
+    mag_disturbances : additive fields: earth-frame ones (``earth_field_ut``,
+        :mod:`margtrack.sim.disturbances`) and body-frame ones (``body_field_ut``, a magnet
+        carried by the sensor: :mod:`margtrack.sim.dipole`).
     gravity_m_s2 : gravity magnitude, m/s².
     seed : integer >= 0 for ``numpy.random.default_rng``.
     with_mag : False leaves ``mag`` as None (its noise is still drawn last, so gyr and
@@ -111,14 +114,19 @@ def simulate(
     g_ref = gravity_reference(frame, gravity_m_s2)
     disturbances = tuple(mag_disturbances)
     field_earth = np.broadcast_to(mag_ref, (t.shape[0], 3)).copy()
+    field_body = np.zeros((t.shape[0], 3))
     for disturbance in disturbances:
-        field_earth += disturbance.earth_field_ut(t, mag_ref, frame)
+        if isinstance(disturbance, BodyMagDisturbance):
+            field_body += disturbance.body_field_ut(t)
+        else:
+            field_earth += disturbance.earth_field_ut(t, mag_ref, frame)
 
     rng = np.random.default_rng(seed)
     gyr = errors["gyr_errors"].apply(body_rate(trajectory), rate_hz, rng)
     acc_true = qt.rotate_inverse(q, trajectory.acc_lin_m_s2 + g_ref)
     acc = errors["acc_errors"].apply(acc_true, rate_hz, rng)
-    mag = errors["mag_errors"].apply(qt.rotate_inverse(q, field_earth), rate_hz, rng)
+    mag_true = qt.rotate_inverse(q, field_earth) + field_body
+    mag = errors["mag_errors"].apply(mag_true, rate_hz, rng)
 
     meta: dict[str, Any] = {
         "source": "margtrack.sim.simulate",
