@@ -72,6 +72,8 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
     ) -> None:
         super().__init__(params, rate_hz=rate_hz, **param_values)
         self._buffers: tuple[Array, Array, NDArray[np.uint16]] | None = None
+        #: one sensor's update buffers once its units are checked (:meth:`update`)
+        self._lean: tuple[Any, ...] | None = None
         self._has_gyr_bit = 2 if self.uses_gyr else 0
         self._derive()
 
@@ -93,6 +95,7 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
     def params(self, value: P) -> None:
         Estimator.params.fset(self, value)  # type: ignore[attr-defined]
         self._derive()
+        self._lean = None
 
     @property
     def flags(self) -> NDArray[np.uint16] | None:
@@ -123,28 +126,35 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         lockstep blocks (:meth:`_in_lanes`) or one after the other, shared among threads
         when ``parallel``; ``frame_major``: inputs (N, S, 3) (lockstep blocks only)."""
         kernel, coefs = self.kernel, self._coefs
-        dts, ks, tflags = kc.clock_series(clock, coefs[screening.kernel.C_MAX_GAP], t)
         has = self._has_bits(has)
         n_sensors = rows.shape[0]
-        lanes = self._in_lanes(n_sensors)
-        width = kernel.N_ROW + kcl.N_B + kernel.N_X
+        n_threads = None if parallel and n_sensors > 1 else 1
+        if not self._in_lanes(n_sensors):  # each part reads its own copy of the clock
+            clocks: dict[int, Array] = {}
 
-        def part(a: int, b: int) -> None:
-            if lanes:
-                scratch = np.empty(width * kcl.LANES)
-                if frame_major:  # the inputs whole, the part's first sensor given
-                    kernel.lanes(scratch, rows[a:b], coefs, dts, ks, tflags, gyr, acc, mag, has,
-                                 q_out[a:b], x_out[a:b], flags_out[a:b], True, a)
-                else:
-                    kernel.lanes(scratch, rows[a:b], coefs, dts, ks, tflags, gyr[a:b],
-                                 acc[a:b], mag[a:b], has, q_out[a:b], x_out[a:b],
-                                 flags_out[a:b], False, 0)
-            else:
-                kernel.run(rows[a:b], coefs, dts, ks, tflags, gyr[a:b], acc[a:b], mag[a:b], has,
+            def run_part(a: int, b: int) -> None:
+                clocks[a] = part_clock = clock.copy()
+                kernel.run(rows[a:b], part_clock, coefs, t, gyr[a:b], acc[a:b], mag[a:b], has,
                            q_out[a:b], x_out[a:b], flags_out[a:b])
 
-        run_threaded(part, n_sensors, align=kcl.LANES if lanes else 1,
-                     n_threads=None if parallel and n_sensors > 1 else 1)
+            try:
+                run_threaded(run_part, n_sensors, align=1, n_threads=n_threads)
+            finally:
+                clock[:] = clocks.get(0, clock)
+            return
+        dts, ks, tflags = kc.clock_series(clock, coefs[screening.kernel.C_MAX_GAP], t)
+        width = kernel.N_ROW + kcl.N_B + kernel.N_X
+
+        def lanes_part(a: int, b: int) -> None:
+            scratch = np.empty(width * kcl.LANES)
+            if frame_major:  # the inputs whole, the part's first sensor given
+                kernel.lanes(scratch, rows[a:b], coefs, dts, ks, tflags, gyr, acc, mag, has,
+                             q_out[a:b], x_out[a:b], flags_out[a:b], True, a)
+            else:
+                kernel.lanes(scratch, rows[a:b], coefs, dts, ks, tflags, gyr[a:b], acc[a:b],
+                             mag[a:b], has, q_out[a:b], x_out[a:b], flags_out[a:b], False, 0)
+
+        run_threaded(lanes_part, n_sensors, align=kcl.LANES, n_threads=n_threads)
 
     def _new_rows(self, n_sensors: int) -> CompiledState:
         rows = np.zeros((n_sensors, self.kernel.N_ROW))
@@ -165,6 +175,7 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         self._probe = UnitProbe()
         self._last_flags = None
         self._buffers = None
+        self._lean = None
         if q0 is None:
             self._state = None
             return
@@ -186,12 +197,30 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         first samples the units are checked. One call of the kernel ``run`` over one
         sample, so N updates equal one ``run``.
         """
+        state, lean = self._state, self._lean
+        if (lean is not None and getattr(acc, "ndim", 0) == 1 and state is not None
+                and state.rows.shape[0] == 1 and self._probe.done):
+            # one sensor past its unit check: the sample into the kernel's buffers, one call
+            if dt is None:
+                dt = self._dt_default
+                if dt is None:
+                    raise ValueError("update() needs dt (s) or an estimator built with rate_hz")
+            t, g, a, m, q_out, x_out, flags, views = lean
+            a[:] = acc  # (3,) views of the (1, 1, 3) inputs
+            g[:] = acc if gyr is None else gyr
+            m[:] = acc if mag is None else mag
+            clock = state.clock
+            t[0] = clock[0] + dt
+            has = self._has_bits((mag is not None) | (self._has_gyr_bit if gyr is not None else 0))
+            self.kernel.run(state.rows, clock, self._coefs, t, views[0], views[1], views[2], has,
+                            q_out, x_out, flags)
+            self._last_flags = flags[:, 0]
+            return q_out[0, 0].copy()
         acc = np.asarray(acc, dtype=np.float64)
         one = acc.ndim == 1
         a = acc.reshape(-1, 3)
         g = a if gyr is None else np.asarray(gyr, dtype=np.float64).reshape(-1, 3)
         m = a if mag is None else np.asarray(mag, dtype=np.float64).reshape(-1, 3)
-        state = self._state
         if state is None:
             if self.uses_gyr and gyr is None:
                 raise ValueError(f"method {self.name!r} needs gyroscope data (gyr)")
@@ -225,13 +254,14 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
             )
         q_out, x_out, flags = buffers
         has = (mag is not None) | (self._has_gyr_bit if gyr is not None else 0)
-        self._run_kernel(
-            state.rows, state.clock, t, _read_only(np.ascontiguousarray(g[:, None])),
-            _read_only(np.ascontiguousarray(a[:, None])),
-            _read_only(np.ascontiguousarray(m[:, None])), has, q_out, x_out, flags,
-            parallel=False,
-        )
+        inputs = [np.ascontiguousarray(x[:, None]) for x in (g, a, m)]
+        self._run_kernel(state.rows, state.clock, t, *(_read_only(x) for x in inputs), has,
+                         q_out, x_out, flags, parallel=False)
         self._last_flags = flags[:, 0].copy()
+        if n_sensors == 1 and self._probe.done:  # the lean path's own buffers from now on
+            own = [np.zeros((1, 1, 3)) for _ in range(3)]
+            views = tuple(_read_only(x) for x in own)
+            self._lean = (t, *(x[0, 0] for x in own), q_out, x_out, flags, views)
         return q_out[0, 0].copy() if one else q_out[:, 0].copy()
 
     def _run_arrays(

@@ -173,7 +173,7 @@ def block(start_at, step_at, hold_at, rare_at, n_row, n_x, st, rows, s0, scoef, 
     ``n_x`` the method's row and extra outputs widths (constants). For a kernel compiled
     with ``_nrt=False`` (numba's reference counting, kept otherwise around every array
     passed to an inlined function, is a call the vectoriser cannot take), by a method's
-    entry point per block (:func:`run_blocks`). The coefficients come as tuples
+    entry point (``skeleton.entry_points``' ``lanes``). The coefficients come as tuples
     (``jit.to_fixed_tuple``, with the method's constant ``N_COEF``, in its entry point): read
     from an array, each is a pointer the vectorised loop must check at run time against the
     buffer it writes, and LLVM gives up beyond a few; a tuple is values.
@@ -221,17 +221,3 @@ def block(start_at, step_at, hold_at, rare_at, n_row, n_x, st, rows, s0, scoef, 
             for k in range(n_x_out):
                 x_out[su, iu, np.uint64(k)] = st[np.uint64(i_x + k * lanes) + lu]
     _rows_out(rows, s0, n, n_row, st)
-
-
-@njit(cache=True, inline="always")
-def run_blocks(block_kernel, width, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
-               flags_out, frame_major, s_in):
-    """``contract.run_series`` (same arguments and results) by blocks of LANES sensors in
-    lockstep: ``block_kernel(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out,
-    x_out, flags_out, frame_major, s_in)`` the method's :func:`block`, ``width`` its slots
-    per lane; the inputs frame-major or not as :func:`block` takes them."""
-    dts, ks, tflags = contract._clock_series(clock, coefs[screen.C_MAX_GAP], t)
-    st = np.empty(width * LANES)
-    for b in range((rows.shape[0] + LANES - 1) // LANES):
-        block_kernel(st, rows, b * LANES, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out,
-                     x_out, flags_out, frame_major, s_in)

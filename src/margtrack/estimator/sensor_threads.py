@@ -3,9 +3,10 @@
 A method's series kernels (``run``, ``lanes``) release the GIL (``nogil``), so Python
 threads run them at the same time on disjoint slices of the sensors. The sensors are
 independent and each gets the same arithmetic as in one call, so the results are the same
-to the bit; the shared clock is read once before (``contract.clock_series``). No kernel is
-compiled for this: a ``parallel=True`` kernel (``numba.prange``) would be a second
-compilation of the whole method.
+to the bit; each part reads a copy of the shared clock (the same timestamps give the same
+clock), or the lockstep blocks its values read once before (``skeleton.clock_series``).
+No kernel is compiled for this: a ``parallel=True`` kernel (``numba.prange``) would be a
+second compilation of the whole method.
 """
 
 from __future__ import annotations

@@ -16,8 +16,8 @@ A method provides three ``@njit`` functions over one sensor's flat state row ``r
 :func:`entry_points` generates the method's compiled entry points from them: ``run``
 (S sensors' N samples; ``update`` is ``run`` over one sample, so N updates equal one run),
 ``lanes`` (the same in lockstep blocks, for a method that also writes its functions in
-strided form) and ``start``. Every sample goes through :func:`_sample`. The shared clock
-is read once per call, before the sensors (:func:`clock_series`).
+strided form) and ``start``. Every sample goes through :func:`_sample`. ``run`` reads the
+shared clock sample by sample; ``lanes`` on its values read before (:func:`clock_series`).
 
 ``contract_lanes`` runs the same samples for blocks of sensors in lockstep, vectorised
 across them, with the same results, for a method that also provides its functions in
@@ -135,38 +135,45 @@ def clock_series(clock, max_gap, t):
 
 
 @njit(cache=True, inline="always")
-def _sensor_series(start, step, hold, row, coef, scoef, dts, ks, tflags, gyr, acc, mag,
-                   has_mag, has_gyr, q_out, x_out, flags_out):
-    """One sensor's N samples: gyr, acc, mag (N, 3); q_out (N, 4), x_out (N, K), flags_out
-    (N,) filled."""
-    for i in range(dts.shape[0]):
-        flags_out[i] = _sample(
-            start, step, hold, row, coef, scoef, dts[i], ks[i], tflags[i],
-            gyr[i, 0], gyr[i, 1], gyr[i, 2], acc[i, 0], acc[i, 1], acc[i, 2],
-            mag[i, 0], mag[i, 1], mag[i, 2], has_mag, has_gyr, q_out[i], x_out[i],
-        )
-
-
-@njit(cache=True, inline="always")
-def series(start, step, hold, rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
+def series(start, step, hold, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
            flags_out):
-    """S sensors' N samples on a shared clock's values (:func:`_clock_series`): dts, ks,
-    tflags (N,).
+    """S sensors' N samples with common timestamps ``t`` (N,) s on the shared ``clock``
+    (1,) in/out.
 
     rows (S, R) in/out; coefs: the screening coefficients (N_SCOEF) then the method's;
     gyr, acc, mag (S, N, 3); ``has`` bits: 1 a field is given, 2 a rate is given;
-    q_out (S, N, 4), x_out (S, N, K), flags_out (S, N) uint16 filled; each sensor runs
-    through its samples on its own. The body of a method's ``series``, compiled without
-    numba's reference counting (``_nrt=False``): with it, every array a sample passes on
-    (the row, the output rows ``q_out[i]``, ``x_out[i]``) is counted in and out, about a
-    dozen atomic calls per sample: 3-9 % of a filter's time on one stream, a third of plain
-    gyro integration's (``perf``).
+    q_out (S, N, 4), x_out (S, N, K), flags_out (S, N) uint16 filled. Each sensor runs
+    through its samples on its own, reading the clock from where the call found it (the
+    same intervals for all; the clock ends where one sensor's samples leave it). A
+    reference gain is computed (an ``exp``) only for an interval that differs from the last
+    two (a steady rate's intervals take 2-3 values in turn). The body of a method's
+    ``run``, compiled without numba's reference counting (``_nrt=False``): with it, every
+    array a sample passes on (the row, the output rows) is counted in and out, about a
+    dozen atomic calls per sample.
     """
     scoef, coef = coefs[:N_SCOEF], coefs[N_SCOEF:]
     has_mag, has_gyr = (has & 1) != 0, (has & 2) != 0
+    max_gap = scoef[screen.C_MAX_GAP]
+    clock_before = clock[0]
     for s in range(rows.shape[0]):
-        _sensor_series(start, step, hold, rows[s], coef, scoef, dts, ks, tflags, gyr[s], acc[s],
-                       mag[s], has_mag, has_gyr, q_out[s], x_out[s], flags_out[s])
+        clock[0] = clock_before
+        row, gyr_s, acc_s, mag_s, q_s, x_s = rows[s], gyr[s], acc[s], mag[s], q_out[s], x_out[s]
+        dt_a, k_a, dt_b, k_b = math.nan, 0.0, math.nan, 0.0  # the last two gains computed
+        for i in range(t.shape[0]):
+            dt, tflags = screen.time_one(clock, max_gap, t[i])
+            if dt == dt_a:
+                k_ref = k_a
+            elif dt == dt_b:
+                k_ref = k_b
+            else:
+                dt_b, k_b = dt_a, k_a
+                dt_a, k_a = dt, screen.ref_gain(dt)
+                k_ref = k_a
+            flags_out[s, i] = _sample(
+                start, step, hold, row, coef, scoef, dt, k_ref, tflags,
+                gyr_s[i, 0], gyr_s[i, 1], gyr_s[i, 2], acc_s[i, 0], acc_s[i, 1], acc_s[i, 2],
+                mag_s[i, 0], mag_s[i, 1], mag_s[i, 2], has_mag, has_gyr, q_s[i], x_s[i],
+            )
 
 
 @njit(cache=True, inline="always")
@@ -187,18 +194,19 @@ def start_rows(start, rows, coefs, quat0):
 # _hold_at, _rare_at, N_ROW, N_X, N_COEF) are a method's, bound by entry_points.
 
 
-def _run_template(rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out):
-    """S sensors' N samples on the shared clock's values (:func:`clock_series`): rows
-    (S, N_ROW) in/out, gyr, acc, mag (S, N, 3), q_out (S, N, 4), x_out (S, N, N_X), flags_out
-    (S, N) filled (:func:`series`)."""
-    series(_start, _step, _hold, rows, coefs, dts, ks, tflags, gyr, acc, mag,  # noqa: F821
+def _run_template(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags_out):
+    """S sensors' N samples at times t (N,) s: rows (S, N_ROW) and clock (1,) in/out, gyr,
+    acc, mag (S, N, 3), q_out (S, N, 4), x_out (S, N, N_X), flags_out (S, N) filled
+    (:func:`series`)."""
+    series(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag,  # noqa: F821
            has, q_out, x_out, flags_out)
 
 
 def _lanes_template(st, rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
                     flags_out, frame_major, s_in):
-    """:func:`_run_template` by blocks of sensors in lockstep (``contract_lanes.block``),
-    the same results; ``st`` ((N_ROW + contract_lanes.N_B + N_X) * LANES,) scratch; the
+    """:func:`_run_template` by blocks of sensors in lockstep (``contract_lanes.block``), on
+    the clock already read (:func:`clock_series`), the same results; ``st``
+    ((N_ROW + contract_lanes.N_B + N_X) * LANES,) scratch; the
     inputs (S, N, 3), or with ``frame_major`` (N, S', 3), sensor s at ``s_in + s``."""
     # coefficients as tuples of constant length: values, not memory the loop must check
     scoef = to_fixed_tuple(coefs, N_SCOEF)
@@ -243,10 +251,9 @@ def entry_points(module_name):
     ``reset(q0)``, differs from one measured), ``N_ROW`` and ``N_X`` (values per sample
     ``run`` writes); ``lanes`` (None otherwise) when it also provides them strided
     (``_start_at``, ``_step_at``, ``_hold_at``, ``_rare_at``: ``estimator/lockstep.py``) and
-    ``N_COEF``. ``run`` and ``lanes`` run
-    on a clock already read (:func:`clock_series`), release the GIL (threads share the
-    sensors) and count no references (``_nrt=False``: a dozen atomic calls a sample
-    otherwise); ``lanes`` also compiles float division without its zero check
+    ``N_COEF``. ``lanes`` runs on a clock already read (:func:`clock_series`); both release
+    the GIL (threads share the sensors) and count no references (``_nrt=False``: a dozen
+    atomic calls a sample otherwise); ``lanes`` also compiles float division without its zero check
     (``error_model="numpy"``, a branch the vectoriser cannot take: the kernels guard every
     division), with LLVM's vectoriser forced to the module's ``LANES_VECTOR_WIDTH`` lanes
     if it sets one (``jit.force_vector_width``).
