@@ -346,9 +346,8 @@ class CompiledEstimator(Estimator[P, CompiledState]):  # type: ignore[type-var]
         ``t`` (N,) s; ``gyr``, ``acc``, ``mag`` (S, N, 3) C-contiguous float64 (rad/s, m/s²,
         any field unit; ``gyr``/``mag`` None as for ``run``); ``q_out`` (S, N, 4), ``x_out``
         (S, N, :attr:`run_width`) (the kernel's per-sample values), or (S, N, 0) when they
-        are not wanted (the lockstep blocks then do not write them: 15-19 % faster for
-        ``bachmann`` and ``robust`` at 150,000 sensors x 4 frames; the per-sensor kernels write
-        them to a scratch array), ``flags_out``
+        are not wanted (the lockstep blocks then do not write them; the per-sensor kernels
+        write them to a scratch array), ``flags_out``
         (S, N) uint16, C-contiguous, overwritten. The kernel call of :meth:`run` on the
         same state (the same results to the bit) without its copies: O(1) checks (shapes,
         dtypes, layout; values are the screening's), no allocation, no state copy, no

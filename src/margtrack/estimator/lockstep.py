@@ -27,7 +27,7 @@ the block (re)starts or its step takes a rare branch, that sample's steps of the
 block run in scalar code (``steady=False``, the same results for the other lanes), with
 the sample as screened, which is the order of ``contract._sample``. Otherwise every lane
 steps in the vector loop, none left out: a lane left out makes each store of the step a
-masked store, slow on AMD's cores (Zen 3: about 9 % of a block's time under ``perf``), and
+masked store, slow on AMD's cores, and
 the screening's stores are unconditional too (``jit.select``), also for a value the same
 for all lanes (``has_mag``).
 

@@ -1,6 +1,6 @@
 """Who may use the live page: loopback by default, the page's own Origin, a token elsewhere.
 
-Threats (issue 17, part 5): any website open in the user's browser can open a websocket to
+Threats: any website open in the user's browser can open a websocket to
 ``ws://127.0.0.1:PORT`` and drive the page (change filter parameters, start a recording,
 write files); a site whose name resolves to 127.0.0.1 (DNS rebinding) reaches the server
 with its own ``Host``; on a non-loopback address every machine on the network can.

@@ -1,6 +1,6 @@
 """The live 3-D view in a browser page, served on this machine by ``viser``.
 
-What the page shows (000's display, in a browser, issue 17 part 11 and issue 18 part 7):
+What the page shows (000's display, in a browser):
 
 - the scene (:mod:`margtrack.live.viewer_scene`): every person as solids (capsule limbs, a
   shoulder girdle, trunk and pelvis boxes, a head; left side blue, right red), the camera

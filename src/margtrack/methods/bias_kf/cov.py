@@ -5,7 +5,7 @@ float64 ``row`` (the filter's state row): ``P`` row-major at ``row[p0:]``, the s
 ``row[s0:]`` (``N_SCRATCH`` slots, offsets ``F_*``). Every helper is inlined and indexes
 ``row`` at offsets the compiler knows, so it keeps the small matrices in registers and sees
 that no two of them overlap (views of the row with their own strides hid that, and every
-store forced the loads after it to be repeated: the former loops spent 95 % of the step).
+store forced the loads after it to be repeated).
 
 What the structure buys, each an identity of exact arithmetic (the rounding differs):
 

@@ -65,10 +65,8 @@ Screened samples (``margtrack.estimator.screening``) and degenerate pairs:
   the angular noise of the Gauss-Newton quaternion (a component error ε is a rotation of
   2ε, so a unit vector's component variance would be ``4 quat_var / h``; it is
   ``16 quat_var / h``): the screening drops the field mostly in fast motion, where the
-  accelerometer is far from gravity too. On BROAD (16 trials, whose disturbed samples
-  take this path) the mean total RMSE is 3.91 deg with 16, 4.00 with 4, 3.91 with 100,
-  and 3.92 with the gyroscope alone; on 90 s of simulated motion with a clipped field
-  (ignored on 97 % of the samples) 7.75 deg with 16, 7.68 with 4, 8.63 gyro alone;
+  accelerometer is far from gravity too (the factor's effect on BROAD and on a clipped
+  field: docs/methods.md);
 - a zero accelerometer, a pair along one line, or a failed Gauss-Newton fit: the
   gyroscope alone (``H = [I₃ 0]``);
 - the gyroscope measurement is limited to ±``MAX_RATE_RAD_S`` per axis (the screening

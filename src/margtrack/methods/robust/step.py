@@ -11,7 +11,7 @@ first accelerometer samples since a start, an all-zero accelerometer, gains not 
 for this interval, no field reference yet), so the step leaves them out of its code. Its
 other branches compute both sides and store through ``jit.keep`` / ``jit.select`` (the
 new value or the old), the heading's in :func:`_heading_steady`: a store in a branch is a
-masked store in lockstep, slow on AMD's cores (44 of them took 22 % of the block's time).
+masked store in lockstep, slow on AMD's cores.
 One sensor alone keeps the branches (``lanes == 1``). Its angles come from ``_fastmath``
 (a library call inside a branch would stop the vectoriser). Everything is computed in
 ENU.
