@@ -65,7 +65,8 @@ class Fault:
 
 
 def default_faults(duration_s: float) -> list[Fault]:
-    """Every fault the live engine handles once, on sensors 0..8, spread over ``duration_s`` (>= 3 s)."""
+    """Every fault the live engine handles, once each on sensors 0..8, spread over
+    ``duration_s`` (>= 3 s)."""
     if duration_s < 3.0:
         raise ValueError(f"the fault mix needs at least 3 s, got {duration_s}")
     d = duration_s
