@@ -17,7 +17,7 @@ import argparse
 import math
 
 from margtrack import methods, sim
-from margtrack.bench.metrics import error_series, summarize
+from margtrack.accuracy import error_series, summarize
 from margtrack.calibration import Calibration, allan_deviation, identify_noise
 from margtrack.calibration.allan import noise_densities
 from margtrack.estimator.params import specs

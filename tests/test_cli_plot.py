@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 from margtrack import io, methods, sim
-from margtrack.bench.metrics import error_series, summarize
+from margtrack.accuracy import error_series, summarize
 from margtrack.bench.plot_estimate import _break_wraps, flag_spans, plot_estimate
 from margtrack.cli import app
 from margtrack.estimator.flags import Flag

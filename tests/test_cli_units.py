@@ -12,7 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from margtrack import io, sim
-from margtrack.bench.metrics import error_series, summarize
+from margtrack.accuracy import error_series, summarize
 from margtrack.cli import app
 from margtrack.recording import Recording
 

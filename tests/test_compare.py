@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from margtrack import sim
+from margtrack.accuracy import error_series
 from margtrack.bench import external
 from margtrack.bench.compare import compare, plot_comparison
-from margtrack.bench.metrics import error_series
 from margtrack.methods.robust import Robust
 
 

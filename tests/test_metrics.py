@@ -7,7 +7,7 @@ import pytest
 
 from margtrack import frames
 from margtrack import quaternion as quat
-from margtrack.bench.metrics import error_series, rmse_deg, summarize
+from margtrack.accuracy import error_series, rmse_deg, summarize
 
 
 def test_pure_heading_error():

@@ -30,7 +30,7 @@ import numpy as np
 import pytest
 
 from margtrack import frames, methods, sim
-from margtrack.bench.metrics import error_series, summarize
+from margtrack.accuracy import error_series, summarize
 
 if TYPE_CHECKING:  # annotations only: the contract module is moving (estimators/ -> estimator/)
     from margtrack import Estimate, Recording

@@ -13,7 +13,7 @@ The public API, re-exported here:
 - :func:`score` (:func:`margtrack.bench.runner.score_estimate`): an estimate's error
   against its recording's truth as ``margtrack evaluate`` reports it (RMSE in degrees over
   the movement samples); :func:`error_series`, :func:`summarize`
-  (:mod:`margtrack.bench.metrics`): the errors per sample and their RMSE over any mask.
+  (:mod:`margtrack.accuracy`): the errors per sample and their RMSE over any mask.
 
 Submodules that pull in numba or h5py load on first use, so ``import margtrack`` is quick.
 """
@@ -28,7 +28,7 @@ from margtrack.recording import Recording, resample
 
 if TYPE_CHECKING:  # pragma: no cover
     from margtrack import bench, body, calibration, io, live, methods, sim, single_frame
-    from margtrack.bench.metrics import error_series, summarize
+    from margtrack.accuracy import error_series, summarize
     from margtrack.bench.runner import score_estimate as score
     from margtrack.estimator import Estimate, Estimator
     from margtrack.methods import available as available_methods
@@ -51,9 +51,9 @@ _LAZY_NAMES = {
     "Estimator": ("margtrack.estimator", "Estimator"),
     "available_methods": ("margtrack.methods", "available"),
     "create": ("margtrack.methods", "create"),
-    "error_series": ("margtrack.bench.metrics", "error_series"),
+    "error_series": ("margtrack.accuracy", "error_series"),
     "score": ("margtrack.bench.runner", "score_estimate"),
-    "summarize": ("margtrack.bench.metrics", "summarize"),
+    "summarize": ("margtrack.accuracy", "summarize"),
 }
 
 __all__ = [

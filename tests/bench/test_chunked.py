@@ -12,7 +12,7 @@ import pytest
 
 import margtrack as mt
 from margtrack import io, methods
-from margtrack.bench.metrics import error_series, summarize
+from margtrack.accuracy import error_series, summarize
 from margtrack.estimator.flags import FAULT_FLAGS, Flag, summary
 from margtrack.io.chunks import open_chunks
 from margtrack.io.csv import write_estimate_csv

@@ -10,8 +10,8 @@ import pytest
 
 from margtrack import frames, sim
 from margtrack import quaternion as quat
+from margtrack.accuracy import error_series, summarize
 from margtrack.bench import runner
-from margtrack.bench.metrics import error_series, summarize
 from margtrack.bench.runner import (
     Adapter,
     ErrorAccumulator,

@@ -9,7 +9,7 @@ import pytest
 
 from margtrack import frames, sim
 from margtrack import quaternion as quat
-from margtrack.bench.metrics import error_series, summarize
+from margtrack.accuracy import error_series, summarize
 from margtrack.estimator import Flag, initial_orientation, specs
 from margtrack.methods.bias_kf import (
     BiasKalman,

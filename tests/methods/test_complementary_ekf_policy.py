@@ -10,7 +10,7 @@ import pytest
 
 from margtrack import frames, sim
 from margtrack import quaternion as quat
-from margtrack.bench.metrics import error_series
+from margtrack.accuracy import error_series
 from margtrack.estimator import Flag
 from margtrack.estimator import skeleton as kc
 from margtrack.methods.bachmann import Bachmann, BachmannAccMag

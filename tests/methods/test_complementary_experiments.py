@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from margtrack.accuracy import error_series, summarize
 from margtrack.bench.experiments.complementary import EXPERIMENTS
-from margtrack.bench.metrics import error_series, summarize
 from margtrack.io import broad_trials, read_broad
 from margtrack.methods.bachmann import Bachmann
 from margtrack.methods.gyro import GyroIntegration

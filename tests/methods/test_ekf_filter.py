@@ -193,7 +193,7 @@ def test_iterations_are_capped_and_approach_1_runs_none():
 def test_real_data_slice_beats_its_two_sources(broad_folder):
     # BROAD trial 01, first 50 s (motion starts after 34 s): the filter beats gyro
     # integration (its rate input) and the Gauss-Newton fit (its quaternion input) alone
-    from margtrack.bench.metrics import error_series, summarize
+    from margtrack.accuracy import error_series, summarize
     from margtrack.io import read_broad
     from margtrack.methods.gyro import GyroIntegration
     from margtrack.single_frame.gauss_newton import GaussNewton

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from margtrack import quaternion as quat
-from margtrack.bench.metrics import error_series, summarize
+from margtrack.accuracy import error_series, summarize
 from margtrack.methods.gradient import ACC_IGNORED, Gradient, align_to_gyro
 from margtrack.sim import simulate_default
 

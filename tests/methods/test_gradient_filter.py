@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from margtrack import quaternion as quat
+from margtrack.accuracy import error_series, summarize
 from margtrack.bench.broad import evaluate_recording
-from margtrack.bench.metrics import error_series, summarize
 from margtrack.estimator import Flag
 from margtrack.io import broad_trials, read_broad
 from margtrack.methods.gradient import DEFAULT_BETA, Gradient, GradientParams

@@ -7,7 +7,7 @@ import pytest
 
 from margtrack import quaternion as quat
 from margtrack import sim
-from margtrack.bench.metrics import error_series, summarize
+from margtrack.accuracy import error_series, summarize
 from margtrack.methods.bachmann import Bachmann, BachmannParams
 from margtrack.methods.ekf import MarinsEkf, MarinsEkfParams
 from margtrack.methods.rest_null import RestNullState, subtract_rest_null

@@ -9,7 +9,7 @@ import pytest
 
 from margtrack import quaternion as quat
 from margtrack import sim
-from margtrack.bench.metrics import error_series
+from margtrack.accuracy import error_series
 from margtrack.estimator import Flag
 from margtrack.methods.robust import Robust, RobustParams
 from margtrack.single_frame.triad import Triad

@@ -7,7 +7,7 @@ import pytest
 
 from margtrack import methods, sim
 from margtrack import quaternion as quat
-from margtrack.bench.metrics import error_series
+from margtrack.accuracy import error_series
 from margtrack.bench.runner import evaluate
 from margtrack.estimator import Flag
 from margtrack.methods.robust import Robust

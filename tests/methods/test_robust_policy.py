@@ -11,7 +11,7 @@ import pytest
 
 from margtrack import quaternion as quat
 from margtrack import sim
-from margtrack.bench.metrics import error_series
+from margtrack.accuracy import error_series
 from margtrack.estimator import Flag, Params, initial_orientation, specs
 from margtrack.methods.robust import Robust, RobustParams, kernel
 

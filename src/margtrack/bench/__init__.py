@@ -1,5 +1,5 @@
 """Error metrics and benchmark runners (BROAD, speed)."""
 
-from margtrack.bench import metrics
+from margtrack import accuracy as metrics
 
 __all__ = ["metrics"]

@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from margtrack.bench.metrics import ErrorSummary
+from margtrack.accuracy import ErrorSummary
 from margtrack.bench.runner import KEYS, Scores, evaluate, evaluate_all
 from margtrack.estimator import Estimator
 from margtrack.recording import Recording

@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from margtrack import frames
 from margtrack import quaternion as quat
-from margtrack.bench.metrics import ErrorSeries, error_series
+from margtrack.accuracy import ErrorSeries, error_series
 from margtrack.estimator.estimate import Estimate
 from margtrack.estimator.flags import Flag
 from margtrack.io.safe_output import atomic_output

@@ -34,7 +34,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from margtrack.bench.metrics import ErrorSummary, error_series
+from margtrack.accuracy import ErrorAccumulator, ErrorSummary
 from margtrack.estimator.estimate import Estimate
 from margtrack.recording import Recording
 
@@ -54,8 +54,6 @@ __all__ = [
 
 #: the error figures of every result, in degrees
 KEYS = ("total_rmse_deg", "heading_rmse_deg", "inclination_rmse_deg")
-#: samples per block of the error computation (bounds its temporary arrays)
-ERROR_BLOCK = 1 << 17
 
 
 @runtime_checkable
@@ -130,7 +128,7 @@ class TrialScore:
 
     @property
     def errors(self) -> ErrorSummary:
-        """The figures as :class:`~margtrack.bench.metrics.ErrorSummary`."""
+        """The figures as :class:`~margtrack.accuracy.ErrorSummary`."""
         return ErrorSummary(
             self.total_rmse_deg, self.heading_rmse_deg, self.inclination_rmse_deg, self.n_scored
         )
@@ -212,67 +210,6 @@ def run_method(method: Method, recording: Recording) -> tuple[Estimate, float]:
     return estimate, time.perf_counter() - start
 
 
-class ErrorAccumulator:
-    """Squared total/heading/inclination errors (rad²) summed over the scored samples.
-
-    A sample is scored when it is in the recording's ``movement`` mask (every sample
-    without one) and its truth is known (a NaN row of ``quat_true`` is a hole, skipped).
-    :meth:`add` takes a whole recording or its successive chunks (each a Recording slice
-    with its estimate); the RMSE is ``sqrt(sum / count)`` either way, so the figures of a
-    chunked run equal those of the whole run to rounding (1e-12 relative).
-    Errors follow :func:`margtrack.bench.metrics.error_series` (BROAD convention).
-    """
-
-    def __init__(self) -> None:
-        self.sums_rad2 = np.zeros(3)
-        self.count = 0  # scored samples
-        self.selected = 0  # samples in the mask, with or without truth
-        self.has_truth = False
-
-    def add(self, recording: Recording, quat: ArrayLike, frame: str = "ENU") -> None:
-        """Add the errors of ``quat`` (N, 4), body to ``frame``, against ``recording``.
-
-        A recording without truth adds nothing (and :attr:`has_truth` stays False).
-        """
-        if recording.quat_true is None:
-            return
-        q = np.asarray(quat, dtype=np.float64)
-        if q.shape != (recording.n_samples, 4):
-            raise ValueError(
-                f"the estimate has shape {q.shape}; recording {recording.name!r} needs "
-                f"({recording.n_samples}, 4) quaternions [w, x, y, z]"
-            )
-        self.has_truth = True
-        for start in range(0, recording.n_samples, ERROR_BLOCK):
-            part = np.s_[start : start + ERROR_BLOCK]
-            e = error_series(q[part], recording.quat_true[part], frame, recording.frame)
-            mask = np.ones(e.total_rad.shape[0], dtype=bool)
-            if recording.movement is not None:
-                mask = np.asarray(recording.movement[part], dtype=bool)
-            self.selected += int(np.count_nonzero(mask))
-            mask = mask & ~np.isnan(e.total_rad)  # truth holes are skipped
-            for k, err in enumerate((e.total_rad, e.heading_rad, e.inclination_rad)):
-                counted = err[mask]
-                self.sums_rad2[k] += float(np.dot(counted, counted))
-            self.count += int(np.count_nonzero(mask))
-
-    def summary(self) -> ErrorSummary:
-        """The RMSE figures, deg; ``ValueError`` when no sample was scored (and why)."""
-        if not self.has_truth:
-            raise ValueError("no ground truth (quat_true) was given: no error to report")
-        if self.selected == 0:
-            raise ValueError("no sample to evaluate: the mask selects none")
-        if self.count == 0:
-            raise ValueError("no sample to evaluate: the truth is missing (NaN) on every one")
-        total, heading, inclination = np.degrees(np.sqrt(self.sums_rad2 / self.count))
-        return ErrorSummary(float(total), float(heading), float(inclination), self.count)
-
-    def rmse_deg(self) -> tuple[float | None, float | None, float | None]:
-        """(total, heading, inclination) RMSE, deg; Nones when no sample was scored."""
-        if self.count == 0:
-            return None, None, None
-        s = self.summary()
-        return s.total_rmse_deg, s.heading_rmse_deg, s.inclination_rmse_deg
 
 
 def score(
@@ -325,7 +262,7 @@ def score_estimate(estimate: Any, recording: Recording) -> ErrorSummary:
 
     Returns
     -------
-    :class:`~margtrack.bench.metrics.ErrorSummary`: RMSE (deg) of the total, heading and
+    :class:`~margtrack.accuracy.ErrorSummary`: RMSE (deg) of the total, heading and
     inclination error over the recording's ``movement`` samples (every sample without a
     mask; truth holes skipped), and how many samples that is. Scoring every sample instead
     (``summarize(error_series(...))``) weighs the rests at the start and end of a trial,

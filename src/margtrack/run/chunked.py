@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from margtrack.bench.runner import ErrorAccumulator
+from margtrack.accuracy import ErrorAccumulator
 from margtrack.estimator.flags import FAULT_FLAGS, Flag, format_summary
 from margtrack.io.chunks import open_chunks
 from margtrack.io.mapped import flag_invalid

@@ -21,8 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from margtrack import quaternion as quat
+from margtrack.accuracy import error_series
 from margtrack.bench.experiments import ExperimentResult
-from margtrack.bench.metrics import error_series
 from margtrack.methods.gradient import Gradient
 from margtrack.sim import SensorErrors, limb_swing, random_motion, simulate, vertical_tilt
 

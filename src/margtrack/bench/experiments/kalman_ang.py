@@ -19,8 +19,8 @@ import scipy.linalg
 
 from margtrack import frames, sim
 from margtrack import quaternion as quat
+from margtrack.accuracy import error_series, summarize
 from margtrack.bench.experiments import ExperimentResult
-from margtrack.bench.metrics import error_series, summarize
 from margtrack.estimator import initial_orientation
 from margtrack.methods.bias_kf import BiasKalman, BiasKalmanParams, track_all_accelerometer
 from margtrack.methods.bias_kf.kernel import fill_triad_cov

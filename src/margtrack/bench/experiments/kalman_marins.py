@@ -25,8 +25,8 @@ import numpy as np
 
 from margtrack import quaternion as quat
 from margtrack import sim
+from margtrack.accuracy import error_series, summarize
 from margtrack.bench.experiments import ExperimentResult
-from margtrack.bench.metrics import error_series, summarize
 from margtrack.bench.speed import measure
 from margtrack.methods.ekf import MarinsEkf, MarinsEkfParams
 
