@@ -28,8 +28,6 @@ INSTALL_AND_TEST = (
     "python3 -m venv .venv && . .venv/bin/activate && pip install -e \".[dev,live]\" "
     "&& python -m pytest -q -n auto\n"
 )
-#: docs pages linked from the README that other branches are still writing
-PENDING = {"docs/adding_a_method.md"}
 
 
 def _code_blocks(text: str) -> list[tuple[str, str]]:
@@ -167,8 +165,6 @@ def test_the_speed_table_is_the_latest_measurement_in_docs_speed():
 @pytest.mark.parametrize("target", sorted(set(_links(TEXT))))
 def test_every_link_leads_to_a_file(target):
     path = target.split("#")[0]
-    if path in PENDING and not (ROOT / path).exists():
-        pytest.skip(f"{path} is being written on another branch; the link waits for it")
     assert (ROOT / path).is_file(), f"README links to {target}, which is not a file"
 
 
