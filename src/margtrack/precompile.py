@@ -163,7 +163,7 @@ def _use_variant(name: str, params: dict[str, object], gyr: np.ndarray, acc: np.
     from margtrack.estimator.compiled import LANES_MIN_SENSORS
 
     methods.create(name, params).run(gyr=gyr, acc=acc, mag=mag, rate_hz=100.0)
-    if getattr(getattr(methods.create(name, params), "kernel", None), "lanes", None) is not None:
+    if _has_lanes(name):
         lanes = [np.tile(x, (LANES_MIN_SENSORS, 1, 1)) for x in (gyr, acc, mag)]
         methods.create(name, params).run(gyr=lanes[0], acc=lanes[1], mag=lanes[2],
                                          rate_hz=100.0)

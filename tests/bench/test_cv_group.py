@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from broad_slices import write_broad_slices
 from typer.testing import CliRunner
 
 from margtrack import io, methods
@@ -99,16 +100,9 @@ def test_trial_kind_fallbacks():
 @pytest.fixture(scope="module")
 def slices(broad_folder, tmp_path_factory) -> Path:
     """Three 7 s BROAD slices of three kinds with their trials.json."""
-    folder = tmp_path_factory.mktemp("group_slices")
-    names = ["01_undisturbed_slow_rotation_A", "06_undisturbed_fast_rotation_A",
-             "32_disturbed_attached_magnet_1cm"]
-    index = json.loads((broad_folder / "trials.json").read_text())
-    for name in names:
-        io.write(io.read_broad(broad_folder / f"{name}.hdf5").slice(20000, 22000),
-                 folder / f"{name}.hdf5")
-    index["trials"] = {n: index["trials"][n] for n in names}
-    (folder / "trials.json").write_text(json.dumps(index))
-    return folder
+    return write_broad_slices(broad_folder, tmp_path_factory.mktemp("group_slices"),
+                              ["01_undisturbed_slow_rotation_A", "06_undisturbed_fast_rotation_A",
+                               "32_disturbed_attached_magnet_1cm"])
 
 
 @pytest.mark.parametrize("spelling", [["--cv", "group"], ["--cv=group"], ["--cv-by", "group"]])

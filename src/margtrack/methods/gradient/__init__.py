@@ -220,7 +220,6 @@ class Gradient(LiveSensors, CompiledEstimator[GradientParams]):
         coef[kernel.C_MAG_MODE] = MAG_OBJECTIVES[p.mag_objective]
         coef[kernel.C_EXACT] = 1.0 if p.integration == "exact" else 0.0
         coef[kernel.C_GRAVITY] = p.gravity_m_s2
-        coef[kernel.C_USE_MAG] = 1.0 if p.use_mag else 0.0
         coef[kernel.C_TO_FRAME : kernel.C_TO_FRAME + 4] = _FROM_NWU[p.frame]
         coef[kernel.C_UP : kernel.C_UP + 3] = frames.up(p.frame)
         return coef

@@ -19,8 +19,7 @@ are row indices from ``contract.N_CONTRACT`` on):
   is given and ``use_mag`` is on); kept across restarts.
 
 Coefficients (``coef``): ``C_BETA`` rad/s, ``C_MAG_MODE`` (one of the objectives below),
-``C_EXACT`` (1: exact gyro step, 0: Euler), ``C_GRAVITY`` m/s², ``C_USE_MAG`` (0: the
-entry points drop a given field before the screening), ``C_TO_FRAME`` (4) the unit
+``C_EXACT`` (1: exact gyro step, 0: Euler), ``C_GRAVITY`` m/s², ``C_TO_FRAME`` (4) the unit
 quaternion c with ``q_frame = c ⊗ q_nwu``, ``C_UP`` (3) up in the output frame.
 
 Extra outputs (``x_out``): ``X_EULER`` (3) [yaw, pitch, roll] rad, ``X_GRAVITY`` (3) the

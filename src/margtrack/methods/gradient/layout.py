@@ -14,7 +14,6 @@ __all__ = [  # every constant: methods/gradient/kernel.py takes them all
     "C_MAG_MODE",
     "C_TO_FRAME",
     "C_UP",
-    "C_USE_MAG",
     "FIELD_SAFE",
     "FORWARD_ESTIMATED",
     "FORWARD_MEASURED",
@@ -86,10 +85,9 @@ C_BETA = 0  # rad/s
 C_MAG_MODE = 1  # FORWARD_ESTIMATED ... FULL_FIXED
 C_EXACT = 2  # 1: q ⊗ exp(ω dt/2); 0: q + q̇ dt
 C_GRAVITY = 3  # m/s²
-C_USE_MAG = 4  # 0: a given field is dropped (the estimator clears its bit in `has`)
-C_TO_FRAME = 5  # 4: c, q_frame = c ⊗ q_nwu
-C_UP = 9  # 3: up in the output frame
-N_COEF = 12
+C_TO_FRAME = 4  # 4: c, q_frame = c ⊗ q_nwu
+C_UP = 8  # 3: up in the output frame
+N_COEF = 11
 
 # -- extra outputs ----------------------------------------------------------------------------
 X_EULER = 0  # 3: [yaw, pitch, roll], rad
