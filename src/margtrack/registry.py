@@ -101,6 +101,7 @@ RECORDS: tuple[MethodRecord, ...] = (
     }),
     MethodRecord("robust-offline", "margtrack.methods.robust_offline", "RobustOffline",
                  online=False),
+    MethodRecord("smoother", "margtrack.methods.smoother", "Smoother", online=False),
     MethodRecord("triad", "margtrack.single_frame.triad", "Triad"),
 )
 
