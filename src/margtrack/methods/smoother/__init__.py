@@ -57,11 +57,17 @@ class SmootherParams(RobustParams):
     """``robust``'s parameters (the same time constants and detectors), and the gyro noise
     that sets the orientation's random walk in the filter."""
 
-    gyr_noise_deg_s_sqrt_hz: float = param(
+    motion_walk_deg_s_sqrt_hz: float = param(
         1.0,
         unit="deg/s/√Hz",
         gt=0,
-        help="the orientation's random walk in the filter: gyro noise, scale and axis errors",
+        help="the orientation's random walk in motion: gyro noise, scale and axis errors",
+    )
+    gyr_noise_deg_s_sqrt_hz: float = param(
+        0.02,
+        unit="deg/s/√Hz",
+        gt=0,
+        help="the gyro's white noise: the orientation's random walk at rest",
     )
     incl_sigma_init_deg: float = param(
         5.0, unit="deg", gt=0, help="standard deviation of a (re)start's inclination"
@@ -74,8 +80,9 @@ class SmootherParams(RobustParams):
         """The kernel's coefficients for a median sample interval ``dt_s`` and the
         accelerometer's norm at rest."""
         c = np.zeros(kernel.N_COEF)
-        q = math.radians(self.gyr_noise_deg_s_sqrt_hz) ** 2
+        q = math.radians(self.motion_walk_deg_s_sqrt_hz) ** 2
         c[kernel.C_Q_ANGLE] = q
+        c[kernel.C_Q_REST] = math.radians(self.gyr_noise_deg_s_sqrt_hz) ** 2
         c[kernel.C_Q_BIAS] = math.radians(self.bias_walk_deg_s_sqrt_s) ** 2
         c[kernel.C_R_ACC] = self.tau_acc_s**2 * q / dt_s
         c[kernel.C_R_MAG] = self.tau_mag_s**2 * q / dt_s

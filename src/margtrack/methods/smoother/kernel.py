@@ -38,8 +38,8 @@ from margtrack.estimator.jit import njit
 
 #: coefficient slots
 (C_Q_ANGLE, C_Q_BIAS, C_R_ACC, C_R_MAG, C_R_REST, C_P0_INCL, C_P0_HEAD, C_P0_BIAS, C_UP,
- C_GRAVITY) = range(10)
-N_COEF = 10
+ C_GRAVITY, C_Q_REST) = range(11)
+N_COEF = 11
 
 
 @njit(cache=True)
@@ -96,18 +96,16 @@ def _scalar_update(p, dx, i, sign, z, r):
     """One scalar measurement ``z = sign * e[i] + noise(r)`` into error mean ``dx`` and
     covariance ``p`` (Joseph-free form, symmetrised)."""
     s = p[i, i] + r
-    innov = z - sign * dx[i]
-    k = np.empty(6)
+    innov = (z - sign * dx[i]) / s
     for a in range(6):
-        k[a] = sign * p[a, i] / s
+        dx[a] += sign * p[a, i] * innov
+    # P ← P - P hᵀ h P / s, h = sign e_i: the column p[:, i] taken before it changes
+    c0, c1, c2, c3, c4, c5 = p[0, i], p[1, i], p[2, i], p[3, i], p[4, i], p[5, i]
+    col = (c0, c1, c2, c3, c4, c5)
     for a in range(6):
-        dx[a] += k[a] * innov
-    row = np.empty(6)
-    for b in range(6):
-        row[b] = sign * p[i, b]
-    for a in range(6):
+        ka = col[a] / s
         for b in range(a, 6):
-            v = p[a, b] - k[a] * row[b]
+            v = p[a, b] - ka * col[b]
             p[a, b] = v
             p[b, a] = v
 
@@ -128,14 +126,14 @@ def _alone_update(p, dx, i, sign, z, r):
 
 
 @njit(cache=True)
-def _predict_cov(p_f, r, dt, q_angle, q_bias, p_p):
+def _predict_cov(p_f, r, dt, q_angle, q_bias, p_p, scratch):
     """``p_p`` ← ``F p_f Fᵀ + Q`` with ``F = [[I, -dt R], [0, I]]``."""
     # G = -dt R: A' = A + G Cᵀ + C Gᵀ + G B Gᵀ, C' = C + G B, B' = B (+ Q)
-    g = np.empty((3, 3))
+    g = scratch[0]
     for a in range(3):
         for b in range(3):
             g[a, b] = -dt * r[a, b]
-    gb = np.zeros((3, 3))  # G B
+    gb = scratch[1]  # G B
     for a in range(3):
         for b in range(3):
             acc = 0.0
@@ -160,9 +158,9 @@ def _predict_cov(p_f, r, dt, q_angle, q_bias, p_p):
 
 
 @njit(cache=True)
-def _solve_spd(p, m, out):
-    """``out`` (6, 6) ← ``m p⁻¹`` for symmetric positive definite ``p`` (Cholesky)."""
-    low = np.zeros((6, 6))
+def _solve_spd(p, m, out, low, y):
+    """``out`` (6, 6) ← ``m p⁻¹`` for symmetric positive definite ``p`` (Cholesky; ``low``
+    (6, 6) and ``y`` (6,) are scratch)."""
     for j in range(6):
         d = p[j, j]
         for c in range(j):
@@ -175,7 +173,6 @@ def _solve_spd(p, m, out):
                 v -= low[i, c] * low[j, c]
             low[i, j] = v / d
     # rows of out solve out_row p = m_row  <=>  p out_rowᵀ = m_rowᵀ
-    y = np.empty(6)
     for row in range(6):
         for i in range(6):
             v = m[row, i]
@@ -195,7 +192,7 @@ def forward(t, gyr, acc, mag, use_acc, use_mag, at_rest, restart, q_start, b0, c
     """The filter over one sensor's (N,) samples; fills the filtered (``q_f``, ``b_f``,
     ``p_f``) and predicted (``q_p``, ``b_p``, ``p_p``) states, (N, 4), (N, 3), (N, 6, 6)."""
     n = t.size
-    q_angle, q_bias = coefs[C_Q_ANGLE], coefs[C_Q_BIAS]
+    q_angle, q_bias, q_rest = coefs[C_Q_ANGLE], coefs[C_Q_BIAS], coefs[C_Q_REST]
     r_acc, r_mag, r_rest = coefs[C_R_ACC], coefs[C_R_MAG], coefs[C_R_REST]
     g = coefs[C_GRAVITY]  # m/s², the accelerometer's norm at rest
     up_sign = coefs[C_UP]  # +1: up is +z (ENU), -1: up is -z (NED)
@@ -206,6 +203,7 @@ def forward(t, gyr, acc, mag, use_acc, use_mag, at_rest, restart, q_start, b0, c
     p = np.zeros((6, 6))
     dx = np.zeros(6)
     w = np.zeros(3)
+    scratch = np.empty((2, 3, 3))
     for k in range(n):
         if k == 0 or restart[k]:
             q[:] = q_start[k]
@@ -223,7 +221,7 @@ def forward(t, gyr, acc, mag, use_acc, use_mag, at_rest, restart, q_start, b0, c
                 if math.isfinite(gyr[k, a]):
                     w[a] = gyr[k, a]
             _rotation(q, r)
-            _predict_cov(p, r, dt, q_angle, q_bias, p_p[k])
+            _predict_cov(p, r, dt, q_rest if at_rest[k] else q_angle, q_bias, p_p[k], scratch)
             p[:, :] = p_p[k]
             # q ← q ⊗ exp((ω - b) dt)
             wx, wy, wz = (w[0] - b[0]) * dt, (w[1] - b[1]) * dt, (w[2] - b[2]) * dt
@@ -281,7 +279,6 @@ def backward(t, restart, q_f, b_f, q_p, b_p, p_f, p_p, q_s, b_s, bias_var_s):
     orientation ``q_s`` (N, 4), bias ``b_s`` (N, 3) and its variance (N, 3)."""
     n = t.size
     r = np.empty((3, 3))
-    f_t = np.empty((6, 6))
     m = np.empty((6, 6))
     gain = np.empty((6, 6))
     e_next = np.empty(6)
@@ -289,6 +286,8 @@ def backward(t, restart, q_f, b_f, q_p, b_p, p_f, p_p, q_s, b_s, bias_var_s):
     p_s = p_f[n - 1].copy()
     diff = np.empty((6, 6))
     tmp = np.empty((6, 6))
+    low = np.zeros((6, 6))
+    y = np.empty(6)
     q_s[n - 1] = q_f[n - 1]
     b_s[n - 1] = b_f[n - 1]
     for a in range(3):
@@ -303,20 +302,15 @@ def backward(t, restart, q_f, b_f, q_p, b_p, p_f, p_p, q_s, b_s, bias_var_s):
             continue
         dt = t[k + 1] - t[k]
         _rotation(q_f[k], r)
-        # m = P_f(k) Fᵀ, F = [[I, -dt R], [0, I]]
+        # m = P_f(k) Fᵀ, F = [[I, -dt R], [0, I]]: Fᵀ = [[I, 0], [-dt Rᵀ, I]]
         for a in range(6):
-            for c in range(6):
-                f_t[a, c] = 1.0 if a == c else 0.0
-        for a in range(3):
             for c in range(3):
-                f_t[3 + a, c] = -dt * r[c, a]
-        for a in range(6):
-            for c in range(6):
-                v = 0.0
-                for j in range(6):
-                    v += p_f[k, a, j] * f_t[j, c]
+                v = p_f[k, a, c]
+                for j in range(3):
+                    v -= dt * p_f[k, a, 3 + j] * r[c, j]
                 m[a, c] = v
-        _solve_spd(p_p[k + 1], m, gain)
+                m[a, 3 + c] = p_f[k, a, 3 + c]
+        _solve_spd(p_p[k + 1], m, gain, low, y)
         # the smoothed error at k + 1 against its predicted nominal state
         _left_log(q_s[k + 1], q_p[k + 1], e)
         for a in range(3):
