@@ -45,6 +45,7 @@ Array = NDArray[np.float64]
 
 __all__ = ["Smoother", "SmootherParams"]
 
+_NO_GYR = int(Flag.INVALID | Flag.GYR_CLIPPED)
 _NO_ACC = int(Flag.INVALID | Flag.ACC_IGNORED)
 _NO_MAG = int(Flag.INVALID | Flag.MAG_IGNORED | Flag.MAG_DISTURBED)
 _RESTART = int(Flag.GAP | Flag.CLOCK)
@@ -136,6 +137,7 @@ class Smoother(RobustOffline):
             flags = fwd.flags[s].astype(np.int64)
             restart = (flags & _RESTART) != 0
             restart[1:] |= dt <= 0
+            use_gyr = ((flags & _NO_GYR) == 0) & np.all(np.isfinite(x.gyr[s]), axis=1)
             use_acc = ((flags & _NO_ACC) == 0) & np.all(np.isfinite(x.acc[s]), axis=1)
             if x.mag is None:
                 use_mag = np.zeros(n, dtype=bool)
@@ -147,8 +149,8 @@ class Smoother(RobustOffline):
             q_start = np.ascontiguousarray(fwd.quat[s])
             b0 = np.zeros(3)
             store = _Store(n)
-            kernel.forward(x.t, x.gyr[s], x.acc[s], mag_s, use_acc, use_mag, at_rest, restart,
-                           q_start, b0, coefs, *store.forward_arrays())
+            kernel.forward(x.t, x.gyr[s], x.acc[s], mag_s, use_gyr, use_acc, use_mag, at_rest,
+                           restart, q_start, b0, coefs, *store.forward_arrays())
             kernel.backward(x.t, restart, *store.forward_arrays(), quat[s], bias[s], bias_var[s])
         self._state = forward._state
         self._last_flags = fwd.flags[:, -1].copy()

@@ -25,7 +25,7 @@ inclination. Covariance ``P`` (6 x 6).
 A sample whose ``restart`` is set starts the filter afresh from ``q_start`` (a gap or clock
 reset: nothing links the orientation across it; the bias is kept and its variance grown),
 and the backward pass does not smooth across it. Rows with ``use_acc`` / ``use_mag`` /
-``at_rest`` false skip that update; a non-finite rate holds the last finite one.
+``at_rest`` false skip that update; a sample with ``use_gyr`` false holds the last rate.
 """
 
 from __future__ import annotations
@@ -187,7 +187,7 @@ def _solve_spd(p, m, out, low, y):
 
 
 @njit(cache=True)
-def forward(t, gyr, acc, mag, use_acc, use_mag, at_rest, restart, q_start, b0, coefs,
+def forward(t, gyr, acc, mag, use_gyr, use_acc, use_mag, at_rest, restart, q_start, b0, coefs,
             q_f, b_f, q_p, b_p, p_f, p_p):
     """The filter over one sensor's (N,) samples; fills the filtered (``q_f``, ``b_f``,
     ``p_f``) and predicted (``q_p``, ``b_p``, ``p_p``) states, (N, 4), (N, 3), (N, 6, 6)."""
@@ -217,9 +217,8 @@ def forward(t, gyr, acc, mag, use_acc, use_mag, at_rest, restart, q_start, b0, c
                 p[3 + a, 3 + a] += coefs[C_P0_BIAS] if k == 0 else q_bias * (t[k] - t[k - 1])
         else:
             dt = t[k] - t[k - 1]
-            for a in range(3):
-                if math.isfinite(gyr[k, a]):
-                    w[a] = gyr[k, a]
+            if use_gyr[k]:
+                w[0], w[1], w[2] = gyr[k, 0], gyr[k, 1], gyr[k, 2]
             _rotation(q, r)
             _predict_cov(p, r, dt, q_rest if at_rest[k] else q_angle, q_bias, p_p[k], scratch)
             p[:, :] = p_p[k]
@@ -261,10 +260,9 @@ def forward(t, gyr, acc, mag, use_acc, use_mag, at_rest, restart, q_start, b0, c
                 cross_z = (hx * north_y - hy * north_x) * up_sign
                 angle = math.atan2(cross_z, hx * north_x + hy * north_y)
                 _alone_update(p, dx, 2, up_sign, angle, r_mag)
-        if at_rest[k]:
+        if at_rest[k] and use_gyr[k]:
             for a in range(3):
-                if math.isfinite(gyr[k, a]):
-                    _scalar_update(p, dx, 3 + a, 1.0, gyr[k, a] - b[a], r_rest)
+                _scalar_update(p, dx, 3 + a, 1.0, gyr[k, a] - b[a], r_rest)
         _left_exp(q, dx[0], dx[1], dx[2], q)
         for a in range(3):
             b[a] += dx[3 + a]
