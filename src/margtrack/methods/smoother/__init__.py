@@ -1,4 +1,4 @@
-"""smoother: a Kalman filter forward and a Rauch-Tung-Striebel pass backward over a recording.
+"""A Kalman filter forwards and a Rauch-Tung-Striebel pass backwards over a whole recording.
 
 For analysis after recording (``run`` only). Every sample's orientation and gyro bias use
 the whole recording, before and after it, as a fixed-interval smoother does: no lag in
