@@ -223,3 +223,24 @@ def test_two_sensors_at_once_equal_each_alone():
     for s, rec in enumerate(recs):
         alone = Smoother().run(rec)
         assert np.array_equal(both.quat[s], alone.quat)
+
+
+def test_a_restart_starts_from_robusts_settled_window_carried_back_by_the_gyro():
+    from margtrack.methods.smoother import _start_orientations
+
+    traj = sim.constant_rotation((0.3, -0.5, 0.8), 90.0, 2.0, 100.0)  # 90 deg/s
+    rec = sim.simulate(traj, seed=0, gyr_errors=sim.SensorErrors(bias=np.radians([1, 0, 0])))
+    n = rec.t.size
+    restart = np.zeros(n, dtype=bool)
+    restart[100] = True
+    initialising = np.zeros(n, dtype=bool)
+    initialising[100:140] = True  # robust's window after the restart
+    q_rob = quat.multiply(rec.quat_true, quat.from_rotvec([0.0, 0.0, 0.5]))  # heading off
+    q_rob[140] = rec.quat_true[140]  # settled at the window's end
+    bias = np.tile(np.radians([1.0, 0.0, 0.0]), (n, 1))
+    got = _start_orientations(rec.t, rec.gyr, np.ones(n, dtype=bool), restart, initialising,
+                              q_rob, bias)
+    # 0.4 s at 90 deg/s carried back: the truth at the restart, to the integration's error
+    assert np.degrees(quat.angle_between(got[100], rec.quat_true[100])) < 0.05
+    # no window (sample 0): robust's own start row
+    assert np.array_equal(got[0], q_rob[0])

@@ -34,6 +34,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from margtrack import quaternion as quat
 from margtrack.estimator import param
 from margtrack.estimator.estimate import Estimate
 from margtrack.estimator.flags import Flag
@@ -146,7 +147,9 @@ class Smoother(RobustOffline):
                 mag_s = x.mag[s]
                 use_mag = ((flags & _NO_MAG) == 0) & np.all(np.isfinite(mag_s), axis=1)
             at_rest = (flags & int(Flag.REST)) != 0
-            q_start = np.ascontiguousarray(fwd.quat[s])
+            q_start = _start_orientations(
+                x.t, x.gyr[s], use_gyr, restart, (flags & int(Flag.INITIALISING)) != 0,
+                fwd.quat[s], fwd.outputs["gyr_bias_rad_s"][s])
             b0 = np.zeros(3)
             store = _Store(n)
             kernel.forward(x.t, x.gyr[s], x.acc[s], mag_s, use_gyr, use_acc, use_mag, at_rest,
@@ -168,6 +171,39 @@ class Smoother(RobustOffline):
             outputs=outputs,
             flags=fwd.flags,
         )
+
+
+def _start_orientations(
+    t: Array,
+    gyr: Array,
+    use_gyr: NDArray[np.bool_],
+    restart: NDArray[np.bool_],
+    initialising: NDArray[np.bool_],
+    q_robust: Array,
+    bias: Array,
+) -> Array:
+    """(N, 4) with each start's orientation at its start row (sample 0 and every restart):
+    ``robust``'s orientation at the end of its start's window (its first sample not
+    ``INITIALISING``; the start row itself when there is no window), carried back to the
+    start row by the gyroscope (``q_k = q_j ⊗ conj(Π exp((ω_i - b) dt_i))``, i from k + 1
+    to j, ``b`` the bias ``robust`` knows at the segment's end): a restart in motion is
+    measured over ``robust``'s window, not from one sample."""
+    q_start = np.array(q_robust, dtype=np.float64)
+    starts = np.flatnonzero(restart)
+    starts = np.concatenate([[0], starts[starts > 0]])
+    ends = np.concatenate([starts[1:], [t.size]])
+    for k, end in zip(starts, ends, strict=True):
+        settled = np.flatnonzero(~initialising[k:end])
+        j = k + int(settled[0]) if settled.size else end - 1
+        if j == k:
+            continue
+        rates = np.where(use_gyr[k + 1 : j + 1, None], gyr[k + 1 : j + 1], 0.0) - bias[end - 1]
+        steps = quat.from_rotvec(rates * np.diff(t[k : j + 1])[:, None])
+        carried = quat.identity(())
+        for step in steps:
+            carried = quat.multiply(carried, step)
+        q_start[k] = quat.normalize(quat.multiply(q_robust[j], quat.conjugate(carried)))
+    return q_start
 
 
 class _Store:
