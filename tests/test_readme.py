@@ -138,13 +138,15 @@ def test_the_methods_table_agrees_with_docs_methods():
     cross-validated) and its paragraph on unseen trials."""
     docs = (ROOT / "docs" / "methods.md").read_text(encoding="utf-8")
     unseen = " ".join(docs[docs.index("## On unseen trials"):].split())
-    methods = [r for r in _table_rows(TEXT, "`") if len(r) == 5 and r[2].endswith("°")]
+    methods = [r for r in _table_rows(TEXT, "`") if len(r) == 6 and r[2].endswith("°")]
     assert {r[0] for r in methods} >= {"`robust` (default)", "`gradient`", "`ekf`"}
-    for name, _, total, cv, new in methods:
+    for name, _, total, cv, by_kind, new in methods:
         full = _table_rows(docs, name)
         assert full, f"{name} is not in docs/methods.md's table"
         assert full[0][2] == total, name
         assert cv == "–" or full[0][-1].startswith(cv.split(" ")[0]), name
+        if by_kind != "–" and "no grid" not in by_kind:
+            assert f"leave one kind out {by_kind}" in full[0][-1], name
         if new != "–":
             assert f"{name.split()[0]} {new}" in unseen, name
 

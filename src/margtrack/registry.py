@@ -101,6 +101,10 @@ RECORDS: tuple[MethodRecord, ...] = (
     }),
     MethodRecord("robust-offline", "margtrack.methods.robust_offline", "RobustOffline",
                  online=False),
+    MethodRecord("smoother", "margtrack.methods.smoother", "Smoother", online=False, grid={
+        "motion_walk_deg_s_sqrt_hz": GridParam(
+            (0.3, 1.0, 3.0), "the orientation's walk in motion: BROAD is flat over 0.3-3"),
+    }),
     MethodRecord("triad", "margtrack.single_frame.triad", "Triad"),
 )
 

@@ -35,6 +35,7 @@ _WHERE = {
     "MarinsEkfParams": "ekf",
     "Robust": "robust",
     "RobustOffline": "robust_offline",
+    "Smoother": "smoother",
     "RobustParams": "robust",
 }
 

@@ -1,0 +1,218 @@
+"""A Kalman filter forwards and a Rauch-Tung-Striebel pass backwards over a whole recording.
+
+For analysis after recording (``run`` only). Every sample's orientation and gyro bias use
+the whole recording, before and after it, as a fixed-interval smoother does: no lag in
+the inclination's accelerometer low-pass or the heading's field low-pass, and the gyro
+bias of the start known from the data after it. The scheme (kernel module docstring):
+
+1. ``robust`` forward, for what it detects: rest (``REST``, where the gyro measures its
+   bias), rejected field disturbances (``MAG_DISTURBED``, the field not used), the input
+   screening's flags, and the orientation each (re)start begins from;
+2. an error-state Kalman filter over the orientation error in the earth frame and the gyro
+   bias, forward, storing its filtered and predicted states;
+3. the Rauch-Tung-Striebel backward pass over them.
+
+The filter's noise follows from ``robust``'s parameters, so both have the same time
+constants: a random walk of the orientation of density ``q_θ`` (``gyr_noise_deg_s_sqrt_hz``)
+against a measurement of variance ``r`` per sample of interval ``dt`` is a first-order
+low-pass of time constant ``τ = sqrt(r dt / q_θ)`` (the steady-state Kalman-Bucy gain), so
+``r_acc = tau_acc_s² q_θ / dt`` and ``r_mag = tau_mag_s² q_θ / dt``; the bias walks with
+``bias_walk_deg_s_sqrt_s``; at rest each gyro sample measures the bias with the variance of
+``bias_rest_noise_deg_s`` over ``rest_tau_s`` (``σ² rest_tau_s / dt``).
+
+Outputs: ``quat`` (9-D with a magnetometer, else 6-D: the heading then the gyro's),
+``gyr_bias_rad_s`` and ``gyr_bias_sd_rad_s`` (smoothed, rad/s, body axes); ``flags`` are
+the forward ``robust`` pass's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from margtrack import quaternion as quat
+from margtrack.estimator import param
+from margtrack.estimator.estimate import Estimate
+from margtrack.estimator.flags import Flag
+from margtrack.methods.robust import Robust, RobustParams
+from margtrack.methods.robust_offline import RobustOffline
+from margtrack.methods.smoother import kernel
+
+Array = NDArray[np.float64]
+
+__all__ = ["Smoother", "SmootherParams"]
+
+_NO_GYR = int(Flag.INVALID | Flag.GYR_CLIPPED)
+_NO_ACC = int(Flag.INVALID | Flag.ACC_IGNORED)
+_NO_MAG = int(Flag.INVALID | Flag.MAG_IGNORED | Flag.MAG_DISTURBED)
+_RESTART = int(Flag.GAP | Flag.CLOCK)
+#: standard gravity, m/s² (the accelerometer's norm at rest when no rest is detected)
+G = 9.80665
+
+
+@dataclass(frozen=True)
+class SmootherParams(RobustParams):
+    """``robust``'s parameters (the same time constants and detectors), and the gyro noise
+    that sets the orientation's random walk in the filter."""
+
+    motion_walk_deg_s_sqrt_hz: float = param(
+        1.0,
+        unit="deg/s/√Hz",
+        gt=0,
+        help="the orientation's random walk in motion: gyro noise, scale and axis errors",
+    )
+    gyr_noise_deg_s_sqrt_hz: float = param(
+        0.02,
+        unit="deg/s/√Hz",
+        gt=0,
+        help="the gyro's white noise: the orientation's random walk at rest",
+    )
+    incl_sigma_init_deg: float = param(
+        5.0, unit="deg", gt=0, help="standard deviation of a (re)start's inclination"
+    )
+    heading_sigma_init_deg: float = param(
+        30.0, unit="deg", gt=0, help="standard deviation of a (re)start's heading"
+    )
+
+    def smoother_coefficients(self, dt_s: float, gravity_m_s2: float) -> Array:
+        """The kernel's coefficients for a median sample interval ``dt_s`` and the
+        accelerometer's norm at rest."""
+        c = np.zeros(kernel.N_COEF)
+        q = math.radians(self.motion_walk_deg_s_sqrt_hz) ** 2
+        c[kernel.C_Q_ANGLE] = q
+        c[kernel.C_Q_REST] = math.radians(self.gyr_noise_deg_s_sqrt_hz) ** 2
+        c[kernel.C_Q_BIAS] = math.radians(self.bias_walk_deg_s_sqrt_s) ** 2
+        c[kernel.C_R_ACC] = self.tau_acc_s**2 * q / dt_s
+        c[kernel.C_R_MAG] = self.tau_mag_s**2 * q / dt_s
+        c[kernel.C_R_REST] = math.radians(self.bias_rest_noise_deg_s) ** 2 * self.rest_tau_s / dt_s
+        c[kernel.C_P0_INCL] = math.radians(self.incl_sigma_init_deg) ** 2
+        c[kernel.C_P0_HEAD] = math.radians(self.heading_sigma_init_deg) ** 2
+        c[kernel.C_P0_BIAS] = math.radians(self.bias_sigma_init_deg_s) ** 2
+        c[kernel.C_UP] = -1.0 if self.frame == "NED" else 1.0
+        c[kernel.C_GRAVITY] = gravity_m_s2
+        return c
+
+
+class Smoother(RobustOffline):
+    """Fixed-interval smoother over a whole recording (``--method smoother``); see the
+    module docstring. ``update`` refuses (offline), ``run`` takes one whole recording."""
+
+    name = "smoother"
+    params_type = SmootherParams
+    offline: ClassVar[bool] = True
+    outputs_layout = (("gyr_bias_rad_s", 3), ("gyr_bias_sd_rad_s", 3))
+
+    def _run_arrays(
+        self,
+        gyr: ArrayLike | None,
+        acc: ArrayLike,
+        mag: ArrayLike | None,
+        t: Array,
+        *,
+        check_units: bool,
+    ) -> Estimate:
+        if self._state is not None:
+            raise ValueError(
+                "smoother smooths one whole recording per run and cannot continue from an "
+                "earlier run's state; call reset() before the next recording"
+            )
+        x = self._validated(gyr, acc, mag, t, check_units=check_units)
+        params: SmootherParams = self._params
+        forward = Robust(params, rate_hz=self.rate_hz)
+        fwd = Robust._run_arrays(forward, x.gyr, x.acc, x.mag, x.t, check_units=False)
+        n_sensors, n = x.acc.shape[:2]
+        dt = np.diff(x.t)
+        dt_s = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 0.01
+        rest = (fwd.flags & int(Flag.REST)) != 0
+        norms = np.linalg.norm(x.acc[rest], axis=-1)
+        norms = norms[np.isfinite(norms)]
+        coefs = params.smoother_coefficients(dt_s, float(np.median(norms)) if norms.size else G)
+        quat = np.empty((n_sensors, n, 4))
+        bias = np.empty((n_sensors, n, 3))
+        bias_var = np.empty((n_sensors, n, 3))
+        for s in range(n_sensors):
+            flags = fwd.flags[s].astype(np.int64)
+            restart = (flags & _RESTART) != 0
+            restart[1:] |= dt <= 0
+            use_gyr = ((flags & _NO_GYR) == 0) & np.all(np.isfinite(x.gyr[s]), axis=1)
+            use_acc = ((flags & _NO_ACC) == 0) & np.all(np.isfinite(x.acc[s]), axis=1)
+            if x.mag is None:
+                use_mag = np.zeros(n, dtype=bool)
+                mag_s = np.zeros((n, 3))
+            else:
+                mag_s = x.mag[s]
+                use_mag = ((flags & _NO_MAG) == 0) & np.all(np.isfinite(mag_s), axis=1)
+            at_rest = (flags & int(Flag.REST)) != 0
+            q_start = _start_orientations(
+                x.t, x.gyr[s], use_gyr, restart, (flags & int(Flag.INITIALISING)) != 0,
+                fwd.quat[s], fwd.outputs["gyr_bias_rad_s"][s])
+            b0 = np.zeros(3)
+            store = _Store(n)
+            kernel.forward(x.t, x.gyr[s], x.acc[s], mag_s, use_gyr, use_acc, use_mag, at_rest,
+                           restart, q_start, b0, coefs, *store.forward_arrays())
+            kernel.backward(x.t, restart, *store.forward_arrays(), quat[s], bias[s], bias_var[s])
+        self._state = forward._state
+        self._last_flags = fwd.flags[:, -1].copy()
+        self._flag_one = None
+        outputs: dict[str, NDArray[Any]] = {
+            "gyr_bias_rad_s": bias,
+            "gyr_bias_sd_rad_s": np.sqrt(np.maximum(bias_var, 0.0)),
+        }
+        return Estimate(
+            quat=quat,
+            t=x.t.copy(),
+            frame=params.frame,
+            method=self.name,
+            params=dict(self._params_dict),
+            outputs=outputs,
+            flags=fwd.flags,
+        )
+
+
+def _start_orientations(
+    t: Array,
+    gyr: Array,
+    use_gyr: NDArray[np.bool_],
+    restart: NDArray[np.bool_],
+    initialising: NDArray[np.bool_],
+    q_robust: Array,
+    bias: Array,
+) -> Array:
+    """(N, 4) with each start's orientation at its start row (sample 0 and every restart):
+    ``robust``'s orientation at the end of its start's window (its first sample not
+    ``INITIALISING``; the start row itself when there is no window), carried back to the
+    start row by the gyroscope (``q_k = q_j ⊗ conj(Π exp((ω_i - b) dt_i))``, i from k + 1
+    to j, ``b`` the bias ``robust`` knows at the segment's end): a restart in motion is
+    measured over ``robust``'s window, not from one sample."""
+    q_start = np.array(q_robust, dtype=np.float64)
+    starts = np.flatnonzero(restart)
+    starts = np.concatenate([[0], starts[starts > 0]])
+    ends = np.concatenate([starts[1:], [t.size]])
+    for k, end in zip(starts, ends, strict=True):
+        settled = np.flatnonzero(~initialising[k:end])
+        j = k + int(settled[0]) if settled.size else end - 1
+        if j == k:
+            continue
+        rates = np.where(use_gyr[k + 1 : j + 1, None], gyr[k + 1 : j + 1], 0.0) - bias[end - 1]
+        steps = quat.from_rotvec(rates * np.diff(t[k : j + 1])[:, None])
+        carried = quat.identity(())
+        for step in steps:
+            carried = quat.multiply(carried, step)
+        q_start[k] = quat.normalize(quat.multiply(q_robust[j], quat.conjugate(carried)))
+    return q_start
+
+
+class _Store:
+    """The forward pass's filtered and predicted states, kept for the backward pass."""
+
+    def __init__(self, n: int) -> None:
+        self.q_f, self.b_f = np.empty((n, 4)), np.empty((n, 3))
+        self.q_p, self.b_p = np.empty((n, 4)), np.empty((n, 3))
+        self.p_f, self.p_p = np.empty((n, 6, 6)), np.empty((n, 6, 6))
+
+    def forward_arrays(self) -> tuple[Array, ...]:
+        return self.q_f, self.b_f, self.q_p, self.b_p, self.p_f, self.p_p
