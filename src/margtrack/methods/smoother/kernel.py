@@ -35,6 +35,7 @@ import math
 import numpy as np
 
 from margtrack.estimator.jit import njit
+from margtrack.estimator.quat_kernel import mul
 
 #: coefficient slots
 (C_Q_ANGLE, C_Q_BIAS, C_R_ACC, C_R_MAG, C_R_REST, C_P0_INCL, C_P0_HEAD, C_P0_BIAS, C_UP,
@@ -65,12 +66,7 @@ def _left_exp(q, ex, ey, ez, out):
         s, c = 0.5, 1.0
     else:
         s, c = math.sin(0.5 * angle) / angle, math.cos(0.5 * angle)
-    aw, ax, ay, az = c, s * ex, s * ey, s * ez
-    bw, bx, by, bz = q[0], q[1], q[2], q[3]
-    w = aw * bw - ax * bx - ay * by - az * bz
-    x = aw * bx + ax * bw + ay * bz - az * by
-    y = aw * by - ax * bz + ay * bw + az * bx
-    z = aw * bz + ax * by - ay * bx + az * bw
+    w, x, y, z = mul(c, s * ex, s * ey, s * ez, q[0], q[1], q[2], q[3])
     n = math.sqrt(w * w + x * x + y * y + z * z)
     out[0], out[1], out[2], out[3] = w / n, x / n, y / n, z / n
 
@@ -78,12 +74,7 @@ def _left_exp(q, ex, ey, ez, out):
 @njit(cache=True)
 def _left_log(a, b, e):
     """``e`` ← the rotation vector of ``a ⊗ conj(b)`` (rad, the short way)."""
-    aw, ax, ay, az = a[0], a[1], a[2], a[3]
-    bw, bx, by, bz = b[0], -b[1], -b[2], -b[3]
-    w = aw * bw - ax * bx - ay * by - az * bz
-    x = aw * bx + ax * bw + ay * bz - az * by
-    y = aw * by - ax * bz + ay * bw + az * bx
-    z = aw * bz + ax * by - ay * bx + az * bw
+    w, x, y, z = mul(a[0], a[1], a[2], a[3], b[0], -b[1], -b[2], -b[3])
     if w < 0.0:
         w, x, y, z = -w, -x, -y, -z
     s = math.sqrt(x * x + y * y + z * z)
@@ -229,12 +220,7 @@ def forward(t, gyr, acc, mag, use_gyr, use_acc, use_mag, at_rest, restart, q_sta
                 s, c = 0.5, 1.0
             else:
                 s, c = math.sin(0.5 * angle) / angle, math.cos(0.5 * angle)
-            ew, ex, ey, ez = c, s * wx, s * wy, s * wz
-            qw, qx, qy, qz = q[0], q[1], q[2], q[3]
-            q[0] = qw * ew - qx * ex - qy * ey - qz * ez
-            q[1] = qw * ex + qx * ew + qy * ez - qz * ey
-            q[2] = qw * ey - qx * ez + qy * ew + qz * ex
-            q[3] = qw * ez + qx * ey - qy * ex + qz * ew
+            q[0], q[1], q[2], q[3] = mul(q[0], q[1], q[2], q[3], c, s * wx, s * wy, s * wz)
         q_p[k] = q
         b_p[k] = b
         if k == 0 or restart[k]:
