@@ -134,8 +134,16 @@ def live_command(
     = None,
     sensors: Annotated[str | None, typer.Option(
         help="UDP/serial sensors: a count or comma-separated names.")] = None,
-    no_mag: Annotated[bool, typer.Option("--no-mag", help="UDP/serial lines carry no mag.")]
-    = False,
+    no_mag: Annotated[bool, typer.Option(
+        "--no-mag", help="No magnetometer: every filter runs without it and, with a body "
+        "model, every segment but the pelvis is its parent's orientation times the relative "
+        "orientation across the joint (gyroscopes and accelerometers of both; lever arms "
+        "estimated after a few seconds of motion, or --lever-arms). UDP/serial/OSC lines "
+        "then carry no mag.")] = False,
+    lever_arms: Annotated[Path | None, typer.Option(
+        "--lever-arms", help="With --no-mag: known lever arms, JSON {\"left_knee\": "
+        "{\"parent_m\": \\[x, y, z], \"child_m\": \\[x, y, z]}, ...} (m, joint centre to "
+        "sensor, sensor frames); joints left out are estimated.")] = None,
     time_unit: Annotated[str, typer.Option(
         "--time-unit", help="Unit of the UDP/serial lines' timestamps: s, ms, us or ns.")]
     = "s",
@@ -226,6 +234,14 @@ def live_command(
     if sensor_calibration:
         source = _calibrated(source, sensor_calibration)
     params: list[str] | dict[str, Any] = param or []
+    arms = None
+    if lever_arms is not None:
+        if not no_mag:
+            raise ValueError("--lever-arms serves the joint constraint of --no-mag; add "
+                             "--no-mag")
+        from margtrack.live.joint_chain import read_chain_lever_arms
+
+        arms = read_chain_lever_arms(lever_arms)
     recorded = getattr(source, "recording", None)  # a raw live recording replayed
     if recorded is not None and method == "default" and not param:
         method, params, calibrate = recorded.method, dict(recorded.params), False
@@ -233,7 +249,8 @@ def live_command(
                       f"{method} and its parameters and calibrations")
     if headless:
         _headless(source, method, params, calibrate, heading, axis, duration, console,
-                  record, force, summary=summary, stale_after_s=stale_after_s)
+                  record, force, summary=summary, stale_after_s=stale_after_s,
+                  no_mag=no_mag, lever_arms=arms)
         return
     from margtrack.live.avatars import Avatars
     from margtrack.live.viewer import run_live
@@ -250,7 +267,8 @@ def live_command(
                        warn=lambda m: err.print(f"[bold yellow]warning:[/] {escape(m)}",
                                                 soft_wrap=True),
                        calibrate_at_start=calibrate and has_body, heading=cast(Heading, heading),
-                       forward_axis=axis, out_dir=out, duration_s=duration, record=record)
+                       forward_axis=axis, out_dir=out, duration_s=duration, record=record,
+                       no_mag=no_mag, lever_arms=arms)
     recorder = getattr(session.viewer, "raw_recorder", None)
     if recorder is not None and record is not None:
         console.print(f"raw recording: {recorder.n_frames} frames written to "
@@ -280,7 +298,8 @@ def _headless(source: Source, method: str, params: list[str] | dict[str, Any],
               calibrate: bool, heading: str,
               axis: Any, duration: float | None, console: Console,
               record: Path | None = None, force: bool = False, *,
-              summary: Path | None = None, stale_after_s: float | None = None) -> None:
+              summary: Path | None = None, stale_after_s: float | None = None,
+              no_mag: bool = False, lever_arms: Any = None) -> None:
     import time
 
     from margtrack.live.engine import Engine
@@ -288,7 +307,8 @@ def _headless(source: Source, method: str, params: list[str] | dict[str, Any],
 
     engine = Engine(source.info, method, params, heading=cast(Heading, heading),
                     forward_axis=axis, stale_after_s=stale_after_s,
-                    summary_path=None if summary is None else str(summary))
+                    summary_path=None if summary is None else str(summary),
+                    no_mag=no_mag, lever_arms=lever_arms)
     recorder = RawRecorder(engine) if record is not None else None
     if recorder is not None:
         recorder.start()
@@ -307,6 +327,11 @@ def _headless(source: Source, method: str, params: list[str] | dict[str, Any],
                   f"{engine.method}")
     console.print(stats.summary())
     console.print(f"calibration: {stats.calibration}")
+    if no_mag:
+        from margtrack.live.viewer_panels import joints_lines
+
+        for line in joints_lines(engine.joints):
+            console.print(line, soft_wrap=True)
     if summary is not None:
         console.print(f"summary written to {summary}")
     if stats.error:
