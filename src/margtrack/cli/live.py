@@ -200,6 +200,10 @@ def live_command(
     lsl: Annotated[str | None, typer.Option(
         "--lsl", help="Read the Lab Streaming Layer stream of this name (type IMU/MARG).")]
     = None,
+    walking_root: Annotated[bool, typer.Option(
+        "--walking-root/--fixed-root", help="Once calibrated, the avatar's pelvis moves with "
+        "the feet's contacts (the planted foot held still: the avatar walks across the "
+        "floor; the page's Reset position puts it back), or stays in place.")] = True,
     sensor_calibration: Annotated[list[str] | None, typer.Option(
         "--sensor-calibration", help="NAME=FILE: correct sensor NAME's samples with this "
         "calibration JSON (margtrack calibrate guided ...); repeatable.")] = None,
@@ -250,7 +254,7 @@ def live_command(
     if headless:
         _headless(source, method, params, calibrate, heading, axis, duration, console,
                   record, force, summary=summary, stale_after_s=stale_after_s,
-                  no_mag=no_mag, lever_arms=arms)
+                  no_mag=no_mag, lever_arms=arms, walking_root=walking_root)
         return
     from margtrack.live.avatars import Avatars
     from margtrack.live.viewer import run_live
@@ -268,7 +272,7 @@ def live_command(
                                                 soft_wrap=True),
                        calibrate_at_start=calibrate and has_body, heading=cast(Heading, heading),
                        forward_axis=axis, out_dir=out, duration_s=duration, record=record,
-                       no_mag=no_mag, lever_arms=arms)
+                       no_mag=no_mag, lever_arms=arms, walking_root=walking_root)
     recorder = getattr(session.viewer, "raw_recorder", None)
     if recorder is not None and record is not None:
         console.print(f"raw recording: {recorder.n_frames} frames written to "
@@ -299,7 +303,8 @@ def _headless(source: Source, method: str, params: list[str] | dict[str, Any],
               axis: Any, duration: float | None, console: Console,
               record: Path | None = None, force: bool = False, *,
               summary: Path | None = None, stale_after_s: float | None = None,
-              no_mag: bool = False, lever_arms: Any = None) -> None:
+              no_mag: bool = False, lever_arms: Any = None,
+              walking_root: bool = False) -> None:
     import time
 
     from margtrack.live.engine import Engine
@@ -308,7 +313,7 @@ def _headless(source: Source, method: str, params: list[str] | dict[str, Any],
     engine = Engine(source.info, method, params, heading=cast(Heading, heading),
                     forward_axis=axis, stale_after_s=stale_after_s,
                     summary_path=None if summary is None else str(summary),
-                    no_mag=no_mag, lever_arms=lever_arms)
+                    no_mag=no_mag, lever_arms=lever_arms, walking_root=walking_root)
     recorder = RawRecorder(engine) if record is not None else None
     if recorder is not None:
         recorder.start()
@@ -327,6 +332,14 @@ def _headless(source: Source, method: str, params: list[str] | dict[str, Any],
                   f"{engine.method}")
     console.print(stats.summary())
     console.print(f"calibration: {stats.calibration}")
+    root = engine.latest.root_m if engine.latest is not None else None
+    if root is not None and engine.avatars is not None:
+        import numpy as np
+
+        moved = root - engine.avatars.root_positions_m  # x, y horizontal in ENU and NED
+        console.print("root (pelvis) moved by the feet, horizontally from its start: "
+                      + "; ".join(f"{p or 'the person'} {np.hypot(m[0], m[1]):.2f} m"
+                                  for p, m in zip(engine.avatars.people, moved, strict=True)))
     if no_mag:
         from margtrack.live.viewer_panels import joints_lines
 

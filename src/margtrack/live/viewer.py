@@ -146,6 +146,11 @@ class LiveViewer:
             self._record = gui.add_button("Start recording", disabled=self.engine.avatars is None)
             self._record.on_click(lambda _: self.toggle_recording())
             self._exports = gui.add_markdown(f"exports go to `{self.out_dir.resolve()}`")
+            if self.engine.walking_root:
+                self._reset_root = gui.add_button(
+                    "Reset position", hint="Put the avatar back where it started (its root "
+                    "walks with the feet's contacts once calibrated).")
+                self._reset_root.on_click(lambda _: self.engine.reset_root())
         with gui.add_folder(f"Filter: {self.engine.method}"):
             self._axes_box = gui.add_checkbox("show segment axes", initial_value=False)
             self._axes_box.on_update(lambda _: self.scene.set_axes_visible(self._axes_box.value))
@@ -351,6 +356,7 @@ def run_live(
     record: str | Path | None = None,
     no_mag: bool = False,
     lever_arms: Mapping[str, Any] | None = None,
+    walking_root: bool = False,
 ) -> LiveSession:
     """Track ``source`` live and serve the 3-D view at ``session.url``.
 
@@ -364,8 +370,8 @@ def run_live(
     token : None: a random token off loopback, none on it; True: a random one anyway;
         a string: that token (12+ URL-safe characters); False: none (refused off loopback).
         See :mod:`margtrack.live.security`.
-    display_hz, height_m, calibrate_at_start, heading, forward_axis, no_mag, lever_arms :
-        see :class:`Engine`.
+    display_hz, height_m, calibrate_at_start, heading, forward_axis, no_mag, lever_arms,
+    walking_root : see :class:`Engine`.
     out_dir : where "Stop recording and export" writes (default ``./margtrack_live``).
     block : serve until Ctrl-C (or ``duration_s``), then stop everything and return the
         stopped session; ``False`` returns the running session at once (call ``stop()``).
@@ -385,7 +391,7 @@ def run_live(
         return Engine(source.info, method, params, height_m=height_m, display_hz=display_hz,
                       heading=heading, forward_axis=forward_axis,
                       calibrate_at_start=calibrate_at_start, no_mag=no_mag,
-                      lever_arms=lever_arms)
+                      lever_arms=lever_arms, walking_root=walking_root)
 
     engine = new_engine()
     server = guarded_viser_server(host, port, policy)
