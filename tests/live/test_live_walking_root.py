@@ -41,7 +41,7 @@ def _walk_live(frame: str, every: int, noise_rad_s: float):
     out_t, out_root, out_w = [], [], []
     for k in range(t.size):
         root.gait.step(t[k:k + 1], sag[None, :, k:k + 1])
-        if k % every == 0:
+        if k % every == 0:  # a coarser rate of frames
             rates = np.linalg.norm(w[k, feet], axis=1)[None]
             out_root.append(root.update(t[k], q[k][None], rates)[0].copy())
             out_w.append(root.weights[0].copy())

@@ -368,8 +368,8 @@ class Engine:
             pose = Pose.of(self._frame_index, frames.t_s[-1], frames.arrival_s[-1],
                            q_last, self.avatars, self._body.offsets)
         if self._root is not None:  # the roots follow the feet (live/walking_root.py)
-            self._root.batch(frames.t_s, frames.gyr, self._body.offsets, self._body.count)
-            pose = None if pose is None else self._root.walk(pose, frames.gyr)
+            self._root.batch(frames.t_s, frames.gyr, q, self._body.offsets, self._body.count)
+            pose = None if pose is None else self._root.walk(pose)
         t2 = time.perf_counter()
         if pose is not None:
             self._publish(pose)

@@ -1,8 +1,8 @@
 """The live avatars' root (pelvis) from foot contacts: the planted foot held still, causally.
 
 ``margtrack body`` moves the root after the recording (:mod:`margtrack.body.root`: gait
-events found with the whole shank signal). Live, each published pose moves it at once
-with what is known up to that pose, with the same geometry
+events found with the whole shank signal). Live, every frame moves it at once with
+what is known up to that frame, with the same geometry
 (:func:`~margtrack.body.root.contact_points`, :func:`~margtrack.body.root.contact_lift_m`,
 :func:`~margtrack.body.root.planted_weights`):
 
@@ -145,16 +145,13 @@ class WalkingRoot:
         self.gait = GaitEvents(self.avatars.n_people, **self._gait_options)
         self._last: tuple[float, Array, Array, Array] | None = None
 
-    def step_gait(self, t_s: Array, gyr_rad_s: Array, offsets: Array) -> None:
-        """Feed the gait events a batch: ``t_s`` (N,) s, every sensor's rate (S, N, 3) rad/s,
-        the calibration's offsets (A, K, 4) (the rates turned into the segment frames)."""
-        if not self.available:
-            return
-        sk = self.avatars.skeleton
+    def sagittal_rates(self, gyr_rad_s: Array, offsets: Array) -> Array:
+        """(A, 2, N) rad/s, each person's left and right gait segment's sagittal rate from
+        every sensor's rate (S, N, 3) rad/s and the calibration's offsets (A, K, 4)."""
         sensors = self.avatars.index[:, self.gait_segments]  # (A, 2)
         off = offsets[:, self.gait_segments]  # (A, 2, 4)
         g = quat.rotate(quat.conjugate(off)[:, :, None, :], gyr_rad_s[sensors])
-        self.gait.step(t_s, g @ body_axes(sk.frame)[0])
+        return g @ body_axes(self.avatars.skeleton.frame)[0]
 
     def update(self, t_s: float, q_segment: Array, rates_rad_s: Array) -> Array:
         """Root positions (A, 3) m at the pose of time ``t_s`` (s).
@@ -210,26 +207,31 @@ class LiveRoot:
         """Every root back at its avatar's place from the next pose on."""
         self._reset.set()
 
-    def batch(self, t_s: Array, gyr_rad_s: Array, offsets: Array | None, count: int) -> None:
-        """Feed a batch (``t_s`` (N,) s, rates (S, N, 3) rad/s) under calibration number
-        ``count`` (0: none yet) with its offsets (A, K, 4)."""
+    def batch(self, t_s: Array, gyr_rad_s: Array, q_sensor: Array, offsets: Array | None,
+              count: int) -> None:
+        """Move the roots over a batch, frame by frame: ``t_s`` (N,) s, every sensor's rate
+        (S, N, 3) rad/s and orientation (S, N, 4), under calibration number ``count`` (0:
+        none yet) with its offsets (A, K, 4)."""
         if count == 0 or offsets is None:
             return
+        root = self.root
         if count != self._count or self._reset.is_set():
             self._reset.clear()
             self._count = count
-            self.root.reset()
-        self.root.step_gait(t_s, gyr_rad_s, offsets)
+            root.reset()
+        sag = root.sagittal_rates(gyr_rad_s, offsets)  # (A, 2, N)
+        q_seg = quat.multiply(q_sensor[root.avatars.index], offsets[:, :, None, :])
+        g = gyr_rad_s[root.contact_sensors]  # (A, 2, N, 3)
+        rates = np.sqrt(np.einsum("aknd,aknd->akn", g, g))
+        for k in range(t_s.shape[0]):
+            root.gait.step(t_s[k:k + 1], sag[:, :, k:k + 1])
+            root.update(float(t_s[k]), q_seg[:, :, k], rates[:, :, k])
 
-    def walk(self, pose: Pose, gyr_rad_s: Array) -> Pose:
-        """``pose`` with every root moved by the feet (joints and ends shifted with it);
-        ``gyr_rad_s`` (S, N, 3) the batch's rates (how fast each foot turns)."""
+    def walk(self, pose: Pose) -> Pose:
+        """``pose`` with every root where the feet moved it (joints and ends shifted)."""
         if self._count == 0 or pose.q_segment is None:
             return pose
-        gyr = gyr_rad_s[self.root.contact_sensors]  # (A, 2, N, 3)
-        rates = np.sqrt(np.einsum("aknd,aknd->akn", gyr, gyr)).mean(axis=2)
-        position = self.root.update(pose.t_s, pose.q_segment, rates)
-        return pose.walked(position, self.root.avatars.root_positions_m)
+        return pose.walked(self.root.position_m, self.root.avatars.root_positions_m)
 
     def moved_m(self, pose: Pose | None) -> list[list[float]] | None:
         """Per person, the root's offset from its avatar's place in ``pose``, m (rounded to
