@@ -46,7 +46,8 @@ def _walk(no_mag: bool, duration_s: float = 30.0, mag: str = "clean", edit=None,
     """
     source = SimulatorSource(PEOPLE, speed=math.inf, duration_s=duration_s)
     info = source.info if mag != "absent" else dataclasses.replace(source.info, has_mag=False)
-    engine = Engine(info, "default", no_mag=no_mag, calibrate_at_start=calibrate == "start")
+    engine = Engine(info, "default", no_mag=no_mag, calibrate_at_start=calibrate == "start",
+                    heading="pelvis", forward_axis=PEOPLE.pelvis_forward_axis())
     if calibrate == "true":
         engine.set_calibrations([dataclasses.replace(identity_calibration(PEOPLE.skeleton),
                                                      offsets=PEOPLE.mounting[0])])
@@ -150,13 +151,22 @@ def test_no_mag_knee_angles_stay_within_a_few_degrees_where_per_sensor_filters_d
     assert np.abs(err9[t9 >= 8.0]).max() > 10.0
 
 
-def test_calibration_request_waits_for_the_joints_to_settle():
-    engine = Engine(SimulatorSource(PEOPLE).info, "default", no_mag=True,
-                    calibrate_at_start=True)
+def test_calibration_waits_for_the_joints_then_uses_the_still_start():
+    info = SimulatorSource(PEOPLE).info
+    engine = Engine(info, "default", no_mag=True, calibrate_at_start=True, heading="pelvis",
+                    forward_axis=PEOPLE.pelvis_forward_axis())
     assert engine.calibration_status.startswith("waiting for every joint to settle")
     summary = engine.summary()["engine"]
     assert summary["no_mag"] is True and len(summary["joints"]) == 6
     assert summary["joints"][0]["state"].startswith("estimating lever arms (0.0 of 3 s")
+    with pytest.raises(ValueError, match="heading 'north' needs the magnetometers"):
+        Engine(info, "default", no_mag=True)
+    # the joints settle a few seconds into the walk; the frames kept meanwhile, chained with
+    # the relative headings found since (the joint filter run backwards), calibrate on the
+    # still second before the first step
+    engine, t, err = _walk(True, duration_s=20.0, mag="absent", calibrate="start")
+    assert engine.calibration_window_s[0] < 0.05
+    assert np.abs(err[t >= 8.0]).max() < 5.0
 
 
 def _drop(sensor: int, start_s: float, stop_s: float):
@@ -227,12 +237,13 @@ def test_given_lever_arms_from_a_file_and_its_errors(tmp_path):
     arms = read_chain_lever_arms(path)
     np.testing.assert_array_equal(arms["left_knee"].r_m, [[0, -0.2, 0], [0, 0.18, 0]])
     info = SimulatorSource(PEOPLE).info
-    engine = Engine(info, "default", no_mag=True, lever_arms=arms)
+    engine = Engine(info, "default", no_mag=True, lever_arms=arms, heading="pelvis")
     rows = {j["joint"]: j for j in engine.joints}
     assert rows["left_knee"]["lever_arms_source"] == "given"
     assert rows["right_knee"]["lever_arms_m"] is None  # estimated later
     with pytest.raises(ValueError, match="no joint of; its joints: left_hip"):
-        Engine(info, "default", no_mag=True, lever_arms={"left_elbow": arms["left_knee"]})
+        Engine(info, "default", no_mag=True, lever_arms={"left_elbow": arms["left_knee"]},
+               heading="pelvis")
     with pytest.raises(ValueError, match="give them with --no-mag"):
         Engine(info, "default", lever_arms=arms)
     path.write_text(json.dumps({"left_knee": {"parent": [0, 0, 0]}}))

@@ -161,7 +161,8 @@ def live_command(
         help="Calibrate on the first still second (reference pose).")] = True,
     heading: Annotated[str | None, typer.Option(
         help=HEADING_HELP + " Default pelvis, as in margtrack body; north with --demo (its "
-        "simulated sensors are mounted at random, so no axis of theirs points forward).")]
+        "simulated sensors are mounted at random, so no axis of theirs points forward), "
+        "except with --no-mag: pelvis, the simulation's pelvis sensor axis.")]
     = None,
     forward_axis: Annotated[str | None, typer.Option(help=FORWARD_AXIS_HELP)] = None,
     port: Annotated[int, typer.Option(help="Port of the page (0: any free one).")] = 8080,
@@ -211,7 +212,7 @@ def live_command(
     """Track sensors live and show the avatar in a browser page (000's prototype system)."""
     console = Console()
     if heading is None:
-        heading = "north" if demo else "pelvis"
+        heading = "north" if demo and not no_mag else "pelvis"
     if heading not in ("north", "pelvis"):
         raise ValueError(f"--heading must be north or pelvis, got {heading!r}")
     if heading == "north" and forward_axis is not None:
@@ -227,6 +228,10 @@ def live_command(
                      no_mag, osc, lsl,
                      udp_host=_udp_host(udp_host, udp is not None or osc is not None),
                      time_unit=time_unit)
+    if demo and no_mag and forward_axis is None and heading == "pelvis":
+        # the simulated sensors are mounted at random: the pelvis sensor's forward axis
+        # comes from the simulation (person 0's mounting)
+        axis = source.simulation.pelvis_forward_axis(0)  # type: ignore[attr-defined]
     if record is not None:
         from margtrack.io.safe_output import check_output
 

@@ -54,7 +54,7 @@ from margtrack.live.avatars import Avatars
 from margtrack.live.calibrations import Calibrations
 from margtrack.live.clocks import SensorClocks
 from margtrack.live.filtering import SensorFilters
-from margtrack.live.joint_chain import JointChain
+from margtrack.live.joint_chain import JointChain, RecentFrames
 from margtrack.live.orientation_log import OrientationLog
 from margtrack.live.pose import Pose
 from margtrack.live.protocol import Chunk, Source, SourceInfo
@@ -142,6 +142,10 @@ class Engine:
             why = "--no-mag leaves it out" if no_mag else "the source has none"
             raise ValueError(f"method {self.method!r} needs a magnetometer; {why}: choose a "
                              "method that runs without one (margtrack methods)")
+        if no_mag and heading == "north" and avatars is not None:
+            raise ValueError("heading 'north' needs the magnetometers, which --no-mag leaves "
+                             "out: use the pelvis heading (--heading pelvis, and the pelvis "
+                             "sensor's --forward-axis)")
         if lever_arms and not no_mag:
             raise ValueError("lever arms (--lever-arms) serve the joint constraint of --no-mag; "
                              "give them with --no-mag (no_mag=True)")
@@ -163,6 +167,7 @@ class Engine:
         self.forward_axis = forward_axis
         self.late_after_s = float(late_after_s)
         self._body = Calibrations(avatars, heading, forward_axis)
+        self._recent = RecentFrames(self._body)  # no_mag: frames kept for a calibration
         if stale_after_s is None:
             stale_after_s = 5.0 / info.rate_hz if info.rate_hz else 0.1
         self.stale_after_s = float(stale_after_s)
@@ -344,10 +349,10 @@ class Engine:
             q, _flags = self._filters.run(dataclasses.replace(frames, mag=None))
             q_last = self._filters.q_last
             if self._chain is not None:
+                q6 = q
                 q = self._chain.run(frames, q)
                 q_last = self._chain.q_last
-                if not self._chain.settled:
-                    request = None  # the relative headings are not found yet
+                request = self._recent.feed(self._chain, request, frames.t_s, q6)
         else:
             q, _flags = self._filters.run(frames)  # (S, N, 4): per-sensor faults isolated
             q_last = self._filters.q_last

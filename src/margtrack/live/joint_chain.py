@@ -38,11 +38,11 @@ from margtrack.joint.lever_arms import LeverArms
 from margtrack.joint.params import JointParams
 from margtrack.live.assembler import Frames
 from margtrack.live.avatars import Avatars
-from margtrack.live.joint_stream import JointStream
+from margtrack.live.joint_stream import BUFFER_S, JointStream
 
 Array = NDArray[np.float64]
 
-__all__ = ["JointChain", "read_chain_lever_arms"]
+__all__ = ["JointChain", "RecentFrames", "read_chain_lever_arms"]
 
 
 def read_chain_lever_arms(path: str | Path) -> dict[str, LeverArms]:
@@ -126,6 +126,16 @@ class JointChain:
         self.q_last = np.ascontiguousarray(out[:, -1])
         return out
 
+    def smoothed(self, t_s: Array, q: Array) -> Array:
+        """Orientations (S, M, 4) at the recent frames ``t_s`` (M,) s: the roots' from ``q``
+        (S, M, 4) (their 6-D filters' at those frames), every other sensor chained through its
+        joint's backward-smoothed relative orientation (:meth:`JointStream.smoothed`), so a
+        still pose before the joints moved is seen with the relative headings found since."""
+        out = np.array(q, dtype=np.float64)
+        for (_, _, p, c), stream in zip(self.joints, self._streams, strict=True):
+            out[c] = qt.normalize(qt.multiply(out[p], stream.smoothed(t_s)))
+        return out
+
     def describe(self) -> list[dict[str, Any]]:
         """Per joint: person, name, sensors, lever arms (m, with std) and their state."""
         rows = []
@@ -147,3 +157,41 @@ class JointChain:
                 "unmeasured_samples": s.unmeasured,
             })
         return rows
+
+
+class RecentFrames:
+    """The engine's frames while a calibration waits for the joints to settle.
+
+    A calibration on the chained orientations needs every joint's relative heading, which
+    the online filter finds only once the joint moves. While a request is pending and the
+    chain has not settled, the roots' 6-D orientations of the last
+    :data:`~margtrack.live.joint_stream.BUFFER_S` are kept here; once it settles they are
+    chained with the joints' backward-smoothed relative orientations
+    (:meth:`JointChain.smoothed`) and given to the request at once, so the still second
+    at the start of a session (before the first steps) still serves as the reference pose.
+    """
+
+    def __init__(self, calibrations: Any) -> None:
+        self._body = calibrations
+        self._t: list[Array] = []
+        self._q: list[Array] = []
+
+    def feed(self, chain: JointChain, request: Any, t_s: Array, q6: Array) -> Any:
+        """The request to feed this batch's chained frames to (None: not now)."""
+        if request is None:
+            self._t, self._q = [], []
+            return None
+        if not chain.settled:
+            self._t.append(np.array(t_s))
+            self._q.append(np.array(q6))
+            while len(self._t) > 1 and self._t[-1][-1] - self._t[0][0] > BUFFER_S:
+                self._t.pop(0)
+                self._q.pop(0)
+            return None
+        if self._t:
+            t = np.concatenate(self._t)
+            q = chain.smoothed(t, np.concatenate(self._q, axis=1))
+            self._t, self._q = [], []
+            self._body.feed(request, t, np.swapaxes(q, 0, 1))
+            return self._body.pending
+        return request

@@ -210,29 +210,58 @@ class JointStream:
     # -- the lever-arm fit ----------------------------------------------------------------
     def _keep(self, t: Array, g: Array, a: Array, ok: NDArray[np.bool_],
               r: NDArray[np.bool_]) -> None:
+        """Count the motion of the filtered samples and keep the last ``buffer_s`` of them
+        (the lever-arm fit, :meth:`smoothed`)."""
         if t.size == 0:
             return
         moving = (np.linalg.norm(g, axis=2) > MOVING_RAD_S).any(axis=0) & ok
         dt = np.diff(t, prepend=self._kept_t if np.isfinite(self._kept_t) else t[0])
         self._motion_s += float(np.minimum(dt, self.params.max_gap_s)[moving].sum())
         self._kept_t = float(t[-1])
-        if self.lever_arms is not None:
-            return
         self._kept.append((t.copy(), g.copy(), a.copy(), ok.copy(), r.copy()))
         self._kept_n += t.size
         while self._kept_n - self._kept[0][0].size >= self._buffer_n:
             self._kept_n -= self._kept.pop(0)[0].size
+
+    def _history(self) -> tuple[Array, Array, Array, NDArray[np.bool_], NDArray[np.bool_]]:
+        parts = self._kept
+        return (np.concatenate([k[0] for k in parts]),
+                np.concatenate([k[1] for k in parts], axis=1),
+                np.concatenate([k[2] for k in parts], axis=1),
+                np.concatenate([k[3] for k in parts]),
+                np.concatenate([k[4] for k in parts]))
+
+    def smoothed(self, t_s: Array) -> Array:
+        """The relative orientation (M, 4) at the kept samples nearest ``t_s`` (M,) s, from
+        the filter run *backwards* from its present state over the kept samples (as the
+        offline estimate's backward pass, :func:`margtrack.joint.relative.relative_orientation`):
+        each output uses every kept sample after it, so a still stretch before the joint
+        moved gets the relative heading the motion revealed. Identity with nothing kept.
+        """
+        from margtrack.joint.kernel import centre_forces, filter_pass
+
+        out = np.tile([1.0, 0.0, 0.0, 0.0], (t_s.shape[0], 1))
+        if not self._kept or not self._started:
+            return out
+        t, g, a, ok, r = self._history()
+        c = centre_forces(t, g, a, self._r)
+        back_restart = np.zeros_like(r)
+        back_restart[1:] = r[::-1][:-1]
+        _, rel, _, _ = filter_pass(-t[::-1], np.ascontiguousarray(-g[:, ::-1]),
+                                   np.ascontiguousarray(c[:, ::-1]), ok[::-1].copy(),
+                                   back_restart, self._q, self._p, True, self._coeffs)
+        rel = rel[::-1]
+        idx = np.clip(np.searchsorted(t, t_s), 0, t.size - 1)
+        prev = np.maximum(idx - 1, 0)
+        idx = np.where(np.abs(t[prev] - t_s) < np.abs(t[idx] - t_s), prev, idx)
+        return rel[idx]
 
     def _maybe_fit(self) -> None:
         if self.lever_arms is not None or self._motion_s < self._next_try_s:
             return
         from margtrack.joint.kernel import centre_forces, filter_pass
 
-        t = np.concatenate([k[0] for k in self._kept])
-        g = np.concatenate([k[1] for k in self._kept], axis=1)
-        a = np.concatenate([k[2] for k in self._kept], axis=1)
-        ok = np.concatenate([k[3] for k in self._kept])
-        r = np.concatenate([k[4] for k in self._kept])
+        t, g, a, ok, r = self._history()
         try:
             arms = estimate_lever_arms(t, g, a, ok)
         except ValueError as exc:
@@ -246,4 +275,3 @@ class JointStream:
                                      np.zeros((5, 5)), False, self._coeffs)
         self._started = first < t.size
         self._after_filtering(q, p, r, ok)
-        self._kept, self._kept_n = [], 0
