@@ -268,3 +268,12 @@ def test_the_page_lists_the_constrained_joints_with_lever_arms_in_cm():
     assert lines[2] == ("- p1/left_hip: lever arms: not yet; estimating lever arms (1.2 of "
                         "3 s of motion)")
     assert "no body model" in joints_lines([])[0]
+
+
+def test_the_chain_product_is_the_hamilton_product():
+    from margtrack import quaternion as quat
+    from margtrack.live.joint_chain import _product
+
+    rng = np.random.default_rng(4)
+    p, q = (quat.normalize(rng.normal(size=(50, 4))) for _ in range(2))
+    np.testing.assert_allclose(_product(p, q), quat.multiply(p, q), atol=1e-15)

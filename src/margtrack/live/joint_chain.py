@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from margtrack import quaternion as qt
 from margtrack.body.chain import joint_name
 from margtrack.joint.lever_arms import LeverArms
 from margtrack.joint.params import JointParams
@@ -66,6 +65,20 @@ def read_chain_lever_arms(path: str | Path) -> dict[str, LeverArms]:
                 for name, v in data.items()}
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{p}: expected JSON like {example}: {exc}") from None
+
+
+def _product(p: Array, q: Array) -> Array:
+    """``normalize(p ⊗ q)`` for (N, 4) unit quaternions, without the checks of
+    :func:`margtrack.quaternion.multiply` (the inputs are the filters' own)."""
+    pw, px, py, pz = p.T
+    qw, qx, qy, qz = q.T
+    out = np.empty_like(p)
+    out[:, 0] = pw * qw - px * qx - py * qy - pz * qz
+    out[:, 1] = pw * qx + px * qw + py * qz - pz * qy
+    out[:, 2] = pw * qy - px * qz + py * qw + pz * qx
+    out[:, 3] = pw * qz + px * qy - py * qx + pz * qw
+    out /= np.sqrt(np.einsum("ij,ij->i", out, out))[:, None]
+    return out
 
 
 class JointChain:
@@ -122,7 +135,7 @@ class JointChain:
                        else frames.restart[pair].any(axis=0))
             rel, _ = stream.step(frames.t_s, frames.gyr[pair], frames.acc[pair],
                                  held[pair].any(axis=0), restart)
-            out[c] = qt.normalize(qt.multiply(out[p], rel))
+            out[c] = _product(out[p], rel)
         self.q_last = np.ascontiguousarray(out[:, -1])
         return out
 
@@ -133,7 +146,7 @@ class JointChain:
         still pose before the joints moved is seen with the relative headings found since."""
         out = np.array(q, dtype=np.float64)
         for (_, _, p, c), stream in zip(self.joints, self._streams, strict=True):
-            out[c] = qt.normalize(qt.multiply(out[p], stream.smoothed(t_s)))
+            out[c] = _product(out[p], stream.smoothed(t_s))
         return out
 
     def describe(self) -> list[dict[str, Any]]:

@@ -190,12 +190,14 @@ class JointStream:
         a2 = np.einsum("snk,snk->sn", acc, acc)
         a_bad = ~np.isfinite(a2) | (a2 >= self._acc_range**2) | (a2 == 0.0)
         bad = held | g_bad.any(axis=0) | a_bad.any(axis=0)
-        for s in range(2):
-            for k in np.flatnonzero(g_bad[s]):
-                gyr[s, k] = self._last_good[s] if k == 0 else gyr[s, k - 1]
-            if gyr.shape[1]:
-                self._last_good[s] = gyr[s, -1]
-        acc[~np.isfinite(acc)] = 0.0
+        if g_bad.any():
+            for s in range(2):
+                for k in np.flatnonzero(g_bad[s]):
+                    gyr[s, k] = self._last_good[s] if k == 0 else gyr[s, k - 1]
+        if gyr.shape[1]:
+            self._last_good = gyr[:, -1].copy()
+        if a_bad.any():
+            acc[~np.isfinite(acc)] = 0.0
         return gyr, acc, bad
 
     def _after_filtering(self, q: Array, p: Array, restart: NDArray[np.bool_],
@@ -214,11 +216,13 @@ class JointStream:
         (the lever-arm fit, :meth:`smoothed`)."""
         if t.size == 0:
             return
-        moving = (np.linalg.norm(g, axis=2) > MOVING_RAD_S).any(axis=0) & ok
-        dt = np.diff(t, prepend=self._kept_t if np.isfinite(self._kept_t) else t[0])
-        self._motion_s += float(np.minimum(dt, self.params.max_gap_s)[moving].sum())
+        moving = (np.einsum("snk,snk->sn", g, g) > MOVING_RAD_S**2).any(axis=0) & ok
+        if moving.any():
+            dt = np.diff(t, prepend=self._kept_t if np.isfinite(self._kept_t) else t[0])
+            self._motion_s += float(np.minimum(dt, self.params.max_gap_s)[moving].sum())
         self._kept_t = float(t[-1])
-        self._kept.append((t.copy(), g.copy(), a.copy(), ok.copy(), r.copy()))
+        # slices of this step's own window arrays (new every step): kept without copies
+        self._kept.append((t, g, a, ok, r))
         self._kept_n += t.size
         while self._kept_n - self._kept[0][0].size >= self._buffer_n:
             self._kept_n -= self._kept.pop(0)[0].size
