@@ -98,7 +98,6 @@ class JointStream:
         self._kept_t = np.nan  # time of the last filtered sample, s
         self._motion_s = 0.0
         self._next_try_s = self.fit_motion_s
-        self._moved_since_fit_s = 0.0 if lever_arms is None else -np.inf
 
     # -- state seen from outside ----------------------------------------------------------
     @property
