@@ -277,3 +277,23 @@ def test_the_chain_product_is_the_hamilton_product():
     rng = np.random.default_rng(4)
     p, q = (quat.normalize(rng.normal(size=(50, 4))) for _ in range(2))
     np.testing.assert_allclose(_product(p, q), quat.multiply(p, q), atol=1e-15)
+
+
+def test_without_a_body_model_no_mag_runs_each_sensor_6d():
+    from margtrack import methods
+    from margtrack.live.protocol import SourceInfo
+
+    t, gyr, acc, mag = PEOPLE.signals(0, 300)
+    info = SourceInfo(("a", "b"), 100.0, True, "two loose sensors")
+    engine = Engine(info, "default", no_mag=True)  # no body: north is no question here
+    assert engine.avatars is None and engine.joints == []
+    got = []
+    engine.subscribe(lambda p: got.append((p.t_s, p.q_sensor)))
+    chunk = Chunk(t, np.arange(2), gyr[:2], acc[:2], mag[:2], np.zeros(t.size))
+    engine.push([chunk], now_s=0.0, flush=True)
+    ref = methods.create("default", rate_hz=100.0).run(gyr=gyr[:2], acc=acc[:2], mag=None,
+                                                        t=t).quat
+    t_pose, q = got[-1]
+    k = int(np.searchsorted(t, t_pose))
+    np.testing.assert_allclose(q, ref[:, k], atol=1e-9)  # the magnetometer never read
+    assert engine.summary()["engine"]["joints"] == []

@@ -142,10 +142,6 @@ class Engine:
             why = "--no-mag leaves it out" if no_mag else "the source has none"
             raise ValueError(f"method {self.method!r} needs a magnetometer; {why}: choose a "
                              "method that runs without one (margtrack methods)")
-        if no_mag and heading == "north" and avatars is not None:
-            raise ValueError("heading 'north' needs the magnetometers, which --no-mag leaves "
-                             "out: use the pelvis heading (--heading pelvis, and the pelvis "
-                             "sensor's --forward-axis)")
         if lever_arms and not no_mag:
             raise ValueError("lever arms (--lever-arms) serve the joint constraint of --no-mag; "
                              "give them with --no-mag (no_mag=True)")
@@ -156,6 +152,10 @@ class Engine:
             avatars = Avatars.from_names(info.sensor_names, height_m, frame)
         if avatars is not None and avatars.skeleton.frame != frame:
             raise ValueError(f"avatars are in {avatars.skeleton.frame} but the filter in {frame}")
+        if no_mag and heading == "north" and avatars is not None:
+            raise ValueError("heading 'north' needs the magnetometers, which --no-mag leaves "
+                             "out: use the pelvis heading (--heading pelvis, and the pelvis "
+                             "sensor's --forward-axis)")
         self.avatars = avatars
         self.no_mag = bool(no_mag)
         self._chain = (JointChain(avatars, info.rate_hz, lever_arms)
