@@ -119,5 +119,6 @@ def test_the_live_page_keeps_the_security_facts_and_the_line_format():
     """What the README only sums up about the live view is stated in full in docs/live.md."""
     live = " ".join((DOCS / "live.md").read_text(encoding="utf-8").split())
     for fact in ("127.0.0.1", "`Origin`", "--host 0.0.0.0", "token", "--udp-host 0.0.0.0",
-                 "UDP has no authentication", "t,sensor,gx,gy,gz,ax,ay,az,mx,my,mz[,seq]"):
+                 "UDP has no authentication", "t,sensor,gx,gy,gz,ax,ay,az,mx,my,mz[,seq]",
+                 "--fixed-root", "--no-mag", "--lever-arms", "Reset position"):
         assert fact in live, fact

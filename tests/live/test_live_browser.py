@@ -205,3 +205,48 @@ def test_replay_end_notice_then_replay_again_restarts_session_time(tmp_path):
     finally:
         session.stop()
     assert not [t for t in threading.enumerate() if t.name.startswith("margtrack-live")]
+
+
+def test_no_mag_page_lists_the_joints_and_the_avatar_walks_until_reset(tmp_path):
+    if not CHROMIUM.is_file():
+        pytest.skip("Debian's chromium is not installed (apt-get install chromium)")
+    sync_api = pytest.importorskip("playwright.sync_api",
+                                   reason="the playwright package is not installed")
+    pytest.importorskip("viser", reason="the live view needs viser (pip install viser)")
+    from margtrack.live.viewer import run_live
+
+    people = PeopleSimulation(preset="lower", seed=3)
+    source = SimulatorSource(people, speed=3.0)
+    session = run_live(source, "default", port=0, block=False, calibrate_at_start=True,
+                       out_dir=tmp_path, heading="pelvis",
+                       forward_axis=people.pelvis_forward_axis(), no_mag=True,
+                       walking_root=True)
+    engine = session.engine
+    try:
+        with sync_api.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+            page = browser.new_page(viewport={"width": 1100, "height": 750})
+            page.goto(session.url)
+            page.get_by_text("Connected").wait_for(timeout=15000)
+            page.get_by_text(re.compile("no magnetometer \\(joints constrained\\)")).wait_for(
+                timeout=10000)
+            page.get_by_text(re.compile("6 joints constrained")).wait_for(timeout=10000)
+            # still 2 s, then 3 s of walking for the lever arms (1/3 of that in real time)
+            page.get_by_text(re.compile(r"left_knee: parent \[.*\(estimated\); settled")
+                             ).wait_for(timeout=20000)
+            _wait(lambda: engine.calibration_status.startswith("calibrated on 0.0"), 10.0,
+                  "the calibration on the still start")
+            start = engine.avatars.root_positions_m[0]
+
+            def moved() -> float:
+                root = engine.latest.root_m if engine.latest is not None else None
+                return math.inf if root is None else float(np.hypot(*(root[0] - start)[:2]))
+
+            _wait(lambda: math.isfinite(moved()) and moved() > 0.5, 15.0,
+                  "the avatar to walk half a metre")
+            page.get_by_role("button", name="Reset position").click()
+            _wait(lambda: moved() < 0.3, 5.0, "the avatar back where it started")
+            browser.close()
+    finally:
+        session.stop()
+    assert not [t for t in threading.enumerate() if t.name.startswith("margtrack-live")]

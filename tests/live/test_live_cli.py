@@ -34,6 +34,33 @@ def test_headless_replay_of_the_xio_body_tracks_and_calibrates(xio_folder):
     assert not [t for t in threading.enumerate() if t.name.startswith("margtrack-live")]
 
 
+def test_headless_no_mag_replay_chains_the_joints_and_calibrates_on_the_still_start(
+        xio_folder, tmp_path):
+    summary = tmp_path / "summary.json"
+    result = runner.invoke(app, ["live", "--replay", str(xio_folder), "--speed", "inf",
+                                 "--headless", "--no-mag", "--summary", str(summary)])
+    assert result.exit_code == 0, result.output
+    out = " ".join(result.output.split())
+    assert "no magnetometer: 6 joints constrained" in out
+    for joint in ("left_hip", "left_knee", "left_ankle", "right_hip", "right_knee",
+                  "right_ankle"):
+        assert re.search(rf"- {joint}: parent \[[-0-9., ]+\] ± \[[0-9., ]+\], child .*"
+                         r"\(estimated\); settled", out), out
+    # on the still start, once every joint has settled (its frames chained with the
+    # relative headings found in the walk after it), as without --no-mag
+    assert "calibration: calibrated on 0.00-0.98 s" in out
+    import json
+
+    engine = json.loads(summary.read_text())["engine"]
+    assert engine["no_mag"] is True and [j["joint"] for j in engine["joints"]][:2] == [
+        "left_hip", "left_knee"]
+
+
+def test_lever_arms_need_no_mag():
+    result = runner.invoke(app, ["live", "--demo", "--headless", "--lever-arms", "a.json"])
+    assert result.exit_code == 2 and "add --no-mag" in result.output
+
+
 def test_headless_demo_runs_for_the_given_duration():
     result = runner.invoke(app, ["live", "--demo", "--preset", "left_arm", "--motion", "wave",
                                  "--speed", "20", "--duration", "0.5", "--headless"])

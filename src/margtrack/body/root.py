@@ -48,8 +48,8 @@ from margtrack.body.skeleton import Skeleton
 
 Array = NDArray[np.float64]
 
-__all__ = ["RootPath", "anchor_weights", "contact_points", "leg_ends", "root_from_contacts",
-           "stance"]
+__all__ = ["RootPath", "anchor_weights", "contact_lift_m", "contact_points", "leg_ends",
+           "planted_weights", "root_from_contacts", "stance"]
 
 SIDES = ("left", "right")
 #: Scales of the soft guess of the planted foot where the events show no stance: height
@@ -185,26 +185,46 @@ def contact_points(skeleton: Skeleton, q_segment: ArrayLike, blend_m: float = 0.
     return pts, np.stack([heel_low, 1.0 - heel_low], axis=-1)
 
 
-def _planted(skeleton: Skeleton, q: Array, t: Array, heights: Array) -> Array:
-    """(N, 2) how likely each foot is the one on the floor, by height and by turning rate.
+def planted_weights(heights_m: ArrayLike, rates_rad_s: ArrayLike) -> Array:
+    """(..., 2) how likely each foot (left, right) is the one on the floor.
 
-    The lower foot and the foot that turns slower (a planted foot hardly turns; a swinging
-    one turns at several rad/s), each a soft choice over ``_GUESS_HEIGHT_M`` and
-    ``_GUESS_RATE_RAD_S``, multiplied: either clue decides when the other is even (both
-    feet level at the start and end of a swing; both still at mid-swing's turn of the foot).
+    heights_m (..., 2) m, each foot's contact point along the up axis; rates_rad_s (..., 2)
+    rad/s, how fast each foot (or shank) turns. The lower foot and the foot that turns
+    slower (a planted foot hardly turns; a swinging one turns at several rad/s), each a
+    soft choice over ``_GUESS_HEIGHT_M`` and ``_GUESS_RATE_RAD_S``, multiplied: either clue
+    decides when the other is even (both feet level at the start and end of a swing; both
+    still at mid-swing's turn of the foot). Each row sums to 1 (0.5 each when both clues
+    cancel).
     """
+    h = np.asarray(heights_m, dtype=np.float64)
+    r = np.asarray(rates_rad_s, dtype=np.float64)
+    low = _soft_smaller(h[..., 0], h[..., 1], _GUESS_HEIGHT_M)
+    slow = _soft_smaller(r[..., 0], r[..., 1], _GUESS_RATE_RAD_S)
+    left, right = low * slow, (1.0 - low) * (1.0 - slow)
+    total = left + right
+    left = np.where(total > 0, left / np.where(total > 0, total, 1.0), 0.5)
+    return np.stack([left, 1.0 - left], axis=-1)
+
+
+def _planted(skeleton: Skeleton, q: Array, t: Array, heights: Array) -> Array:
+    """(N, 2) :func:`planted_weights` with each foot's turning rate from its orientations."""
     ends = leg_ends(skeleton)
     idx = [skeleton.index(ends[s]) for s in SIDES]
     rate = np.zeros((t.size, 2))
     if t.size > 1:
         rate[1:] = quat.angle_between(q[:-1, idx], q[1:, idx]) / np.diff(t)[:, None]
         rate[0] = rate[1]
-    low = _soft_smaller(heights[:, 0], heights[:, 1], _GUESS_HEIGHT_M)
-    slow = _soft_smaller(rate[:, 0], rate[:, 1], _GUESS_RATE_RAD_S)
-    left, right = low * slow, (1.0 - low) * (1.0 - slow)
-    total = left + right
-    left = np.where(total > 0, left / np.where(total > 0, total, 1.0), 0.5)
-    return np.stack([left, 1.0 - left], axis=1)
+    return planted_weights(heights, rate)
+
+
+def contact_lift_m(skeleton: Skeleton, blend_m: float = 0.005) -> float:
+    """Height of the root above the floor minus the contacts' mean height (relative to the
+    root) in the reference pose, m: the root's height is this minus the anchor's contact
+    height relative to the root."""
+    up = body_axes(skeleton.frame)[2]
+    ref_pts, ref_share = contact_points(skeleton, quat.identity((1, len(skeleton))), blend_m)
+    return float(skeleton.root_position_m @ up + float(
+        np.einsum("nkp,nkpd->nkd", ref_share, ref_pts)[0].mean(axis=0) @ up))
 
 
 @dataclass(frozen=True, eq=False)
@@ -308,9 +328,7 @@ def root_from_contacts(
     position[0] = start - (start @ up) * up
     position[1:] = position[0] + np.cumsum(horizontal, axis=0)
     # the contact's height above the floor in the reference pose (0 on a foot's sole)
-    ref_pts, ref_share = contact_points(skeleton, quat.identity((1, len(skeleton))), blend_m)
-    lift = skeleton.root_position_m @ up + float(
-        np.einsum("nkp,nkpd->nkd", ref_share, ref_pts)[0].mean(axis=0) @ up)
+    lift = contact_lift_m(skeleton, blend_m)
     position += np.outer(lift - np.einsum("nk,nk->n", w, heights), up)
     guessed = ~in_stance.any(axis=1)
     for arr in (position, w, guessed):

@@ -45,6 +45,7 @@ from margtrack.body.report import summary_lines
 from margtrack.body.root import RootPath, leg_ends, root_from_contacts
 from margtrack.body.skeleton import Skeleton
 from margtrack.recording import Recording
+from margtrack.time_base import common_time_base, flags_on_time_base
 from margtrack.units import UnitError
 
 Array = NDArray[np.float64]
@@ -173,60 +174,6 @@ class BodyResult:
         from margtrack.body.outputs import write_outputs
 
         return write_outputs(self, outdir, force=force, inputs=inputs, bvh_unit=bvh_unit)
-
-
-def _common_rate(recs: list[Recording]) -> float:
-    slowest = min(r.rate_hz for r in recs)
-    whole = float(round(slowest))
-    return whole if whole > 0 and abs(whole - slowest) <= 0.01 * slowest else slowest
-
-
-def _time_base(recs: dict[str, Recording], rate_hz: float | None) -> tuple[Array, list[str]]:
-    """Common timestamps over the span every sensor covers, and notes about cropping."""
-    short = [n for n, r in recs.items() if r.n_samples < 2]
-    if short:
-        raise ValueError(f"sensor {short[0]} has {recs[short[0]].n_samples} sample(s); "
-                         "every sensor needs at least 2")
-    start = max(r.t[0] for r in recs.values())
-    stop = min(r.t[-1] for r in recs.values())
-    rate = _common_rate(list(recs.values())) if rate_hz is None else float(rate_hz)
-    if not (np.isfinite(rate) and rate > 0):
-        raise ValueError(f"rate_hz must be a finite number > 0, got {rate_hz}")
-    if stop - start < 2.0 / rate:
-        spans = "; ".join(f"{n} {r.t[0]:.3f}-{r.t[-1]:.3f} s" for n, r in recs.items())
-        raise ValueError(
-            f"the sensors share no common time span ({spans}); their clocks are not "
-            "synchronised: if they started together, re-time each from its first sample "
-            "(align_start=True, --align-start), else synchronise the clocks first"
-        )
-    t = start + np.arange(int(np.floor((stop - start) * rate + 1e-9)) + 1) / rate
-    notes = []
-    lost = {n: (start - r.t[0]) + (r.t[-1] - stop) for n, r in recs.items()}
-    if max(lost.values()) > 0.5:
-        first = max(recs, key=lambda n: recs[n].t[0])
-        last = min(recs, key=lambda n: recs[n].t[-1])
-        notes.append(
-            f"the span all sensors cover is set by {first} (start) and {last} (end); left out: "
-            + ", ".join(f"{n} {s:.2f} s" for n, s in lost.items() if s > 0.5))
-    rates = [r.rate_hz for r in recs.values()]
-    if max(rates) > 1.1 * min(rates):
-        notes.append(f"sensor rates {min(rates):.1f}-{max(rates):.1f} Hz merged onto "
-                     f"{rate:g} Hz")
-    return t, notes
-
-
-def _frame_flags(rec_t: Array, flags: NDArray[np.uint16] | None, t: Array,
-                 max_gap_s: float) -> NDArray[np.uint16]:
-    """Flags of the two samples around each common frame, plus GAP across a long gap."""
-    from margtrack.estimator.flags import Flag
-
-    i = np.clip(np.searchsorted(rec_t, t, side="right") - 1, 0, rec_t.size - 2)
-    out = np.zeros(t.size, dtype=np.uint16)
-    if flags is not None:
-        out |= flags[i] | flags[i + 1]
-    gap = (rec_t[i + 1] - rec_t[i]) > max_gap_s
-    out[gap] |= np.uint16(Flag.GAP)
-    return out
 
 
 def _pose_window(t_rel: Array, q: Array, pose_window: tuple[float, float] | None,
@@ -363,7 +310,7 @@ def process_body(
     recs = {s: recordings[s] for s in sensors}
     if align_start:
         recs = {s: replace(r, t=r.t - r.t[0]) for s, r in recs.items()}
-    t, span_notes = _time_base(recs, rate_hz)
+    t, span_notes = common_time_base(recs, rate_hz)
     notes = [*notes, *(f"{s}: not in the map, left out" for s in left_out), *span_notes]
     param_values = dict(params) if isinstance(params, Mapping) else dict(
         methods.parse_params_items(params))
@@ -376,7 +323,7 @@ def process_body(
         flag_cols, reports = [], []
         for k, (sensor, segment) in enumerate(zip(sensors, skeleton.names, strict=True)):
             rec, own = recs[sensor], chain.sensor_flags[k]
-            flag_cols.append(_frame_flags(chain.flag_times[k], own, t, max_gap_s))
+            flag_cols.append(flags_on_time_base(chain.flag_times[k], own, t, max_gap_s))
             reports.append(SensorReport(
                 sensor, segment, rec.n_samples, rec.rate_hz,
                 (float(rec.t[0]), float(rec.t[-1])), count_flags(own), 1.0,
@@ -468,7 +415,7 @@ def _independent(sensors: list[str], skeleton: Skeleton, recs: Mapping[str, Reco
             raise ValueError(f"sensor {sensor}: {exc}") from None
         used_params, method_name = est.params, est.method
         q_list.append(resample_orientations(rec.t, est.quat, t))
-        flag_cols.append(_frame_flags(rec.t, est.flags, t, max_gap_s))
+        flag_cols.append(flags_on_time_base(rec.t, est.flags, t, max_gap_s))
         flags = est.flags if est.flags is not None else np.zeros(rec.n_samples, np.uint16)
         unusable = 1.0 if rec.mag is None else float(
             np.mean((flags & int(Flag.MAG_IGNORED)) != 0))

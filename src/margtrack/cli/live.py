@@ -134,8 +134,16 @@ def live_command(
     = None,
     sensors: Annotated[str | None, typer.Option(
         help="UDP/serial sensors: a count or comma-separated names.")] = None,
-    no_mag: Annotated[bool, typer.Option("--no-mag", help="UDP/serial lines carry no mag.")]
-    = False,
+    no_mag: Annotated[bool, typer.Option(
+        "--no-mag", help="No magnetometer: every filter runs without it and, with a body "
+        "model, every segment but the pelvis is its parent's orientation times the relative "
+        "orientation across the joint (gyroscopes and accelerometers of both; lever arms "
+        "estimated after a few seconds of motion, or --lever-arms). UDP/serial/OSC lines "
+        "then carry no mag.")] = False,
+    lever_arms: Annotated[Path | None, typer.Option(
+        "--lever-arms", help="With --no-mag: known lever arms, JSON {\"left_knee\": "
+        "{\"parent_m\": \\[x, y, z], \"child_m\": \\[x, y, z]}, ...} (m, joint centre to "
+        "sensor, sensor frames); joints left out are estimated.")] = None,
     time_unit: Annotated[str, typer.Option(
         "--time-unit", help="Unit of the UDP/serial lines' timestamps: s, ms, us or ns.")]
     = "s",
@@ -153,7 +161,8 @@ def live_command(
         help="Calibrate on the first still second (reference pose).")] = True,
     heading: Annotated[str | None, typer.Option(
         help=HEADING_HELP + " Default pelvis, as in margtrack body; north with --demo (its "
-        "simulated sensors are mounted at random, so no axis of theirs points forward).")]
+        "simulated sensors are mounted at random, so no axis of theirs points forward), "
+        "except with --no-mag: pelvis, the simulation's pelvis sensor axis.")]
     = None,
     forward_axis: Annotated[str | None, typer.Option(help=FORWARD_AXIS_HELP)] = None,
     port: Annotated[int, typer.Option(help="Port of the page (0: any free one).")] = 8080,
@@ -192,6 +201,10 @@ def live_command(
     lsl: Annotated[str | None, typer.Option(
         "--lsl", help="Read the Lab Streaming Layer stream of this name (type IMU/MARG).")]
     = None,
+    walking_root: Annotated[bool, typer.Option(
+        "--walking-root/--fixed-root", help="Once calibrated, the avatar's pelvis moves with "
+        "the feet's contacts (the planted foot held still: the avatar walks across the "
+        "floor; the page's Reset position puts it back), or stays in place.")] = True,
     sensor_calibration: Annotated[list[str] | None, typer.Option(
         "--sensor-calibration", help="NAME=FILE: correct sensor NAME's samples with this "
         "calibration JSON (margtrack calibrate guided ...); repeatable.")] = None,
@@ -199,7 +212,7 @@ def live_command(
     """Track sensors live and show the avatar in a browser page (000's prototype system)."""
     console = Console()
     if heading is None:
-        heading = "north" if demo else "pelvis"
+        heading = "north" if demo and not no_mag else "pelvis"
     if heading not in ("north", "pelvis"):
         raise ValueError(f"--heading must be north or pelvis, got {heading!r}")
     if heading == "north" and forward_axis is not None:
@@ -215,6 +228,10 @@ def live_command(
                      no_mag, osc, lsl,
                      udp_host=_udp_host(udp_host, udp is not None or osc is not None),
                      time_unit=time_unit)
+    if demo and no_mag and forward_axis is None and heading == "pelvis":
+        # the simulated sensors are mounted at random: the pelvis sensor's forward axis
+        # comes from the simulation (person 0's mounting)
+        axis = source.simulation.pelvis_forward_axis(0)  # type: ignore[attr-defined]
     if record is not None:
         from margtrack.io.safe_output import check_output
 
@@ -226,6 +243,14 @@ def live_command(
     if sensor_calibration:
         source = _calibrated(source, sensor_calibration)
     params: list[str] | dict[str, Any] = param or []
+    arms = None
+    if lever_arms is not None:
+        if not no_mag:
+            raise ValueError("--lever-arms serves the joint constraint of --no-mag; add "
+                             "--no-mag")
+        from margtrack.live.joint_chain import read_chain_lever_arms
+
+        arms = read_chain_lever_arms(lever_arms)
     recorded = getattr(source, "recording", None)  # a raw live recording replayed
     if recorded is not None and method == "default" and not param:
         method, params, calibrate = recorded.method, dict(recorded.params), False
@@ -233,7 +258,8 @@ def live_command(
                       f"{method} and its parameters and calibrations")
     if headless:
         _headless(source, method, params, calibrate, heading, axis, duration, console,
-                  record, force, summary=summary, stale_after_s=stale_after_s)
+                  record, force, summary=summary, stale_after_s=stale_after_s,
+                  no_mag=no_mag, lever_arms=arms, walking_root=walking_root)
         return
     from margtrack.live.avatars import Avatars
     from margtrack.live.viewer import run_live
@@ -250,7 +276,8 @@ def live_command(
                        warn=lambda m: err.print(f"[bold yellow]warning:[/] {escape(m)}",
                                                 soft_wrap=True),
                        calibrate_at_start=calibrate and has_body, heading=cast(Heading, heading),
-                       forward_axis=axis, out_dir=out, duration_s=duration, record=record)
+                       forward_axis=axis, out_dir=out, duration_s=duration, record=record,
+                       no_mag=no_mag, lever_arms=arms, walking_root=walking_root)
     recorder = getattr(session.viewer, "raw_recorder", None)
     if recorder is not None and record is not None:
         console.print(f"raw recording: {recorder.n_frames} frames written to "
@@ -280,7 +307,9 @@ def _headless(source: Source, method: str, params: list[str] | dict[str, Any],
               calibrate: bool, heading: str,
               axis: Any, duration: float | None, console: Console,
               record: Path | None = None, force: bool = False, *,
-              summary: Path | None = None, stale_after_s: float | None = None) -> None:
+              summary: Path | None = None, stale_after_s: float | None = None,
+              no_mag: bool = False, lever_arms: Any = None,
+              walking_root: bool = False) -> None:
     import time
 
     from margtrack.live.engine import Engine
@@ -288,7 +317,8 @@ def _headless(source: Source, method: str, params: list[str] | dict[str, Any],
 
     engine = Engine(source.info, method, params, heading=cast(Heading, heading),
                     forward_axis=axis, stale_after_s=stale_after_s,
-                    summary_path=None if summary is None else str(summary))
+                    summary_path=None if summary is None else str(summary),
+                    no_mag=no_mag, lever_arms=lever_arms, walking_root=walking_root)
     recorder = RawRecorder(engine) if record is not None else None
     if recorder is not None:
         recorder.start()
@@ -307,6 +337,19 @@ def _headless(source: Source, method: str, params: list[str] | dict[str, Any],
                   f"{engine.method}")
     console.print(stats.summary())
     console.print(f"calibration: {stats.calibration}")
+    root = engine.latest.root_m if engine.latest is not None else None
+    if root is not None and engine.avatars is not None:
+        import numpy as np
+
+        moved = root - engine.avatars.root_positions_m  # x, y horizontal in ENU and NED
+        console.print("root (pelvis) moved by the feet, horizontally from its start: "
+                      + "; ".join(f"{p or 'the person'} {np.hypot(m[0], m[1]):.2f} m"
+                                  for p, m in zip(engine.avatars.people, moved, strict=True)))
+    if no_mag:
+        from margtrack.live.viewer_panels import joints_lines
+
+        for line in joints_lines(engine.joints):
+            console.print(line, soft_wrap=True)
     if summary is not None:
         console.print(f"summary written to {summary}")
     if stats.error:

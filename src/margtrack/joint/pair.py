@@ -7,8 +7,8 @@ per-sample health flags (:class:`~margtrack.estimator.flags.Flag`):
 - the same timestamps in both: used as they are;
 - different ones (other rates, other starts): the span both cover at the slower rate,
   exactly as ``margtrack body`` builds its common time base
-  (:func:`margtrack.body.workflow._time_base`: cropping noted, no common span refused with
-  the fix), the signals interpolated linearly onto it
+  (:func:`margtrack.time_base.common_time_base`: cropping noted, no common span refused
+  with the fix), the signals interpolated linearly onto it
   (:func:`margtrack.recording.resample`), each frame carrying the flags of the samples
   around it and ``GAP`` when interpolated across a sensor's gap;
 - a value a reader held over a hole (``meta["invalid_samples"]``, :mod:`margtrack.io.mapped`)
@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 
 from margtrack.estimator.flags import Flag
 from margtrack.recording import Recording, resample
+from margtrack.time_base import common_time_base, flags_on_time_base
 from margtrack.units import UnitError, check_unit_magnitudes
 
 Array = NDArray[np.float64]
@@ -151,12 +152,10 @@ def pair_inputs(
         flags = own[0] | own[1]
         restart = np.concatenate([[False], np.diff(t) > max_gap_s])
     else:
-        from margtrack.body.workflow import _frame_flags, _time_base
-
-        t, notes = _time_base(dict(zip(_ROLES, recs, strict=True)), rate_hz)
+        t, notes = common_time_base(dict(zip(_ROLES, recs, strict=True)), rate_hz)
         gyr = np.stack([resample(r.t, g, t) for r, g in zip(recs, gyrs, strict=True)])
         acc = np.stack([resample(r.t, r.acc, t) for r in recs])
-        flags = _frame_flags(recs[0].t, own[0], t, max_gap_s) | _frame_flags(
+        flags = flags_on_time_base(recs[0].t, own[0], t, max_gap_s) | flags_on_time_base(
             recs[1].t, own[1], t, max_gap_s)
         restart = (flags & int(Flag.GAP)) != 0
     restart[0] = False

@@ -40,6 +40,8 @@ class Calibrations:
         self._status = "not calibrated (identity offsets)"
         #: (first, last) time of the frames of the last successful calibration, s
         self.window_s: tuple[float, float] | None = None
+        #: how many calibrations were put in force (0: identity offsets)
+        self.count = 0
 
     def request(self, duration_s: float = 1.0, max_motion_deg: float = 2.0,
                 timeout_s: float = 10.0) -> None:
@@ -83,6 +85,7 @@ class Calibrations:
         with self._lock:
             self._in_force = list(calibrations)
             self._offsets = Avatars.offsets(self._in_force)
+            self.count += 1
 
     def feed(self, request: CalibrationRequest, t_s: Array, q: Array) -> None:
         """Give ``request`` the frames ``t_s`` (N,) and orientations ``q`` (N, S, 4) of a batch;
@@ -99,4 +102,5 @@ class Calibrations:
                 self._in_force = outcome.calibrations
                 self._offsets = Avatars.offsets(outcome.calibrations)
                 self.window_s = outcome.window_s
+                self.count += 1
             self._status = outcome.status

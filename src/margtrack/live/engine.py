@@ -54,12 +54,14 @@ from margtrack.live.avatars import Avatars
 from margtrack.live.calibrations import Calibrations
 from margtrack.live.clocks import SensorClocks
 from margtrack.live.filtering import SensorFilters
+from margtrack.live.joint_chain import JointChain, RecentFrames
 from margtrack.live.orientation_log import OrientationLog
 from margtrack.live.pose import Pose
 from margtrack.live.protocol import Chunk, Source, SourceInfo
 from margtrack.live.recording import LiveRecording
 from margtrack.live.stats import EngineStats, StatsMeter, sensor_counts, summary_dict, write_summary
 from margtrack.live.subscribers import Subscribers
+from margtrack.live.walking_root import LiveRoot, WalkingRoot
 from margtrack.live.worker import Worker
 
 Array = NDArray[np.float64]
@@ -95,6 +97,15 @@ class Engine:
         (:class:`~margtrack.live.clocks.SensorClocks`), s.
     summary_path : where the worker writes the headless summary JSON when it stops
         (:meth:`summary`; atomically, replacing an older file: check it first).
+    no_mag : no magnetometer: every filter runs 6-D and, with a body model, every segment
+        but each person's root is chained to its parent across the joint
+        (:class:`~margtrack.live.joint_chain.JointChain`); a calibration request then waits
+        until every joint has settled.
+    lever_arms : with ``no_mag``, joint name -> given lever arms
+        (:func:`~margtrack.live.joint_chain.read_chain_lever_arms`); others are estimated.
+    walking_root : once a calibration is in force, move every person's root with the feet's
+        contacts (:class:`~margtrack.live.walking_root.WalkingRoot`, ``Pose.root_m``);
+        :meth:`reset_root` puts the roots back. Needs a shank or foot on both legs.
     """
 
     def __init__(
@@ -115,6 +126,9 @@ class Engine:
         stale_after_s: float | None = None,
         clock_jump_s: float = 1.0,
         summary_path: str | None = None,
+        no_mag: bool = False,
+        lever_arms: Mapping[str, Any] | None = None,
+        walking_root: bool = False,
     ) -> None:
         if not (math.isfinite(display_hz) and display_hz > 0):
             raise ValueError(f"display_hz must be a finite number > 0, got {display_hz}")
@@ -124,8 +138,13 @@ class Engine:
             raise ValueError(f"method {self.method!r} is offline (it needs the whole recording); "
                              "live streams need a causal method such as 'robust'")
         self._estimator: Estimator = methods.create(method, params, rate_hz=info.rate_hz)
-        if not info.has_mag and not type(self._estimator).mag_optional:
-            raise ValueError(f"method {self.method!r} needs a magnetometer; the source has none")
+        if (no_mag or not info.has_mag) and not type(self._estimator).mag_optional:
+            why = "--no-mag leaves it out" if no_mag else "the source has none"
+            raise ValueError(f"method {self.method!r} needs a magnetometer; {why}: choose a "
+                             "method that runs without one (margtrack methods)")
+        if lever_arms and not no_mag:
+            raise ValueError("lever arms (--lever-arms) serve the joint constraint of --no-mag; "
+                             "give them with --no-mag (no_mag=True)")
         frame = self._estimator.params.frame
         if isinstance(avatars, str):
             if avatars != "auto":
@@ -133,12 +152,22 @@ class Engine:
             avatars = Avatars.from_names(info.sensor_names, height_m, frame)
         if avatars is not None and avatars.skeleton.frame != frame:
             raise ValueError(f"avatars are in {avatars.skeleton.frame} but the filter in {frame}")
+        if no_mag and heading == "north" and avatars is not None:
+            raise ValueError("heading 'north' needs the magnetometers, which --no-mag leaves "
+                             "out: use the pelvis heading (--heading pelvis, and the pelvis "
+                             "sensor's --forward-axis)")
         self.avatars = avatars
+        self.no_mag = bool(no_mag)
+        self._chain = (JointChain(avatars, info.rate_hz, lever_arms)
+                       if no_mag and avatars is not None else None)
+        self._root = (LiveRoot(avatars) if walking_root and avatars is not None
+                      and WalkingRoot(avatars).available else None)
         self.display_hz = float(display_hz)
         self.heading: Heading = heading
         self.forward_axis = forward_axis
         self.late_after_s = float(late_after_s)
         self._body = Calibrations(avatars, heading, forward_axis)
+        self._recent = RecentFrames(self._body)  # no_mag: frames kept for a calibration
         if stale_after_s is None:
             stale_after_s = 5.0 / info.rate_hz if info.rate_hz else 0.1
         self.stale_after_s = float(stale_after_s)
@@ -210,7 +239,16 @@ class Engine:
     @property
     def calibration_status(self) -> str:
         """What the last calibration request did."""
+        if self._chain is not None and not self._chain.settled and self._body.pending:
+            return ("waiting for every joint to settle (--no-mag: walk or move every joint "
+                    "for a few seconds), then for a still second in the reference pose")
         return self._body.status
+
+    @property
+    def joints(self) -> list[dict[str, Any]]:
+        """With ``no_mag`` and a body model, per constrained joint: its lever arms and
+        state (:meth:`~margtrack.live.joint_chain.JointChain.describe`); else empty."""
+        return [] if self._chain is None else self._chain.describe()
 
     @property
     def calibration_window_s(self) -> tuple[float, float] | None:
@@ -307,7 +345,17 @@ class Engine:
             if self._pending is not None:
                 self._estimator.params, self._pending = self._pending, None
         record, request = self._log.appender(), self._body.pending
-        q, _flags = self._filters.run(frames)  # (S, N, 4): per-sensor faults isolated
+        if self.no_mag:
+            q, _flags = self._filters.run(dataclasses.replace(frames, mag=None))
+            q_last = self._filters.q_last
+            if self._chain is not None:
+                q6 = q
+                q = self._chain.run(frames, q)
+                q_last = self._chain.q_last
+                request = self._recent.feed(self._chain, request, frames.t_s, q6)
+        else:
+            q, _flags = self._filters.run(frames)  # (S, N, 4): per-sensor faults isolated
+            q_last = self._filters.q_last
         t1 = time.perf_counter()
         self._frame_index += frames.n_frames
         if record is not None or request is not None:
@@ -323,7 +371,10 @@ class Engine:
             # the batch's last orientations: the filters keep them contiguous (q_last);
             # q[:, -1] is a strided view (its copy 0.89 ms against 0.33 at 150,000 sensors)
             pose = Pose.of(self._frame_index, frames.t_s[-1], frames.arrival_s[-1],
-                           self._filters.q_last, self.avatars, self._body.offsets)
+                           q_last, self.avatars, self._body.offsets)
+        if self._root is not None:  # the roots follow the feet (live/walking_root.py)
+            self._root.batch(frames.t_s, frames.gyr, q, self._body.offsets, self._body.count)
+            pose = None if pose is None else self._root.walk(pose)
         t2 = time.perf_counter()
         if pose is not None:
             self._publish(pose)
@@ -337,6 +388,16 @@ class Engine:
         for hook in tuple(self.after_batch):
             hook(frames)
         return pose
+
+    @property
+    def walking_root(self) -> bool:
+        """Whether the roots move with the feet's contacts."""
+        return self._root is not None
+
+    def reset_root(self) -> None:
+        """Put every root back at its avatar's place (from the next pose on)."""
+        if self._root is not None:
+            self._root.request_reset()
 
     def _publish(self, pose: Pose) -> None:
         self._latest, failed, error = self._subscribers.publish(pose)
@@ -363,8 +424,11 @@ class Engine:
 
     def summary(self) -> dict[str, Any]:
         """The headless summary (:func:`margtrack.live.stats.summary_dict`) now."""
+        extra: dict[str, Any] = {"no_mag": True, "joints": self.joints} if self.no_mag else {}
+        if self._root is not None:
+            extra["root_moved_m"] = self._root.moved_m(self._latest)
         return summary_dict(self.stats(), method=self.method, running=self.running,
-                            stale_after_s=self.stale_after_s)
+                            stale_after_s=self.stale_after_s, **extra)
 
     def write_summary(self, path: str) -> None:
         """Write :meth:`summary` to ``path`` as JSON, atomically (replaces an older file)."""

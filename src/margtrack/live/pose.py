@@ -7,6 +7,7 @@ arrival/publishing times on the :func:`time.perf_counter` clock.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -30,6 +31,9 @@ class Pose:
     q_sensor : (S, 4) sensor to earth. q_segment (A, K, 4), joints_m / ends_m (A, K, 3) m:
     the body models' segments and joints, or None without a body model.
     arrival_s / published_s : perf_counter times of the frame's arrival and of publishing.
+    root_m : (A, 3) m, the roots moved by the feet's contacts
+        (:class:`~margtrack.live.walking_root.WalkingRoot`; joints_m and ends_m follow), or
+        None while the roots stay at the avatars' places.
     """
 
     index: int
@@ -40,6 +44,7 @@ class Pose:
     ends_m: Array | None
     arrival_s: float
     published_s: float
+    root_m: Array | None = None
 
     @classmethod
     def of(cls, index: int, t_s: float, arrival_s: float, q_sensor: Array,
@@ -56,6 +61,15 @@ class Pose:
             q_sensor = np.array(q_sensor, dtype=np.float64)
         return cls(index, float(t_s), q_sensor, q_segment, joints, ends,
                    float(arrival_s), math.nan)
+
+    def walked(self, root_m: Array, start_m: Array) -> Pose:
+        """This pose with every person's root at ``root_m`` (A, 3) m instead of ``start_m``
+        (A, 3) m: joints and ends shifted with it."""
+        if self.joints_m is None or self.ends_m is None:
+            return self
+        shift = (np.asarray(root_m) - np.asarray(start_m))[:, None, :]
+        return dataclasses.replace(self, joints_m=self.joints_m + shift,
+                                   ends_m=self.ends_m + shift, root_m=np.array(root_m))
 
     @property
     def latency_s(self) -> float:

@@ -19,7 +19,6 @@ span they share, which is what lets the engine run them as one (S, N, 3) batch.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -27,6 +26,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from margtrack import time_base
 from margtrack.io.live_hdf5 import is_live_recording, read_live_recording
 from margtrack.live.live_replay import LiveReplaySource
 from margtrack.live.protocol import BaseSource, Chunk, Pacer, SourceInfo
@@ -191,21 +191,16 @@ def _sleep(seconds: float) -> None:
 
 
 def common_time_base(recordings: Sequence[Recording], rate_hz: float | None = None) -> Array:
-    """Timestamps over the span all recordings share, at ``rate_hz`` (default: median rate)."""
+    """Timestamps over the span all recordings share, at ``rate_hz`` (default: median rate)
+    (:func:`margtrack.time_base.common_time_base`, the sensors named by position)."""
     if not recordings:
         raise ValueError("no recordings given")
-    start = max(float(r.t[0]) for r in recordings)
-    stop = min(float(r.t[-1]) for r in recordings)
     if rate_hz is None:
         rate_hz = float(np.median([1.0 / np.median(np.diff(r.t)) for r in recordings]))
-    if not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise ValueError(f"rate_hz must be a finite number > 0, got {rate_hz}")
-    if stop - start < 2.0 / rate_hz:
-        raise ValueError(
-            f"the recordings share no common time span ({start:.3f} s to {stop:.3f} s); "
-            "they must overlap in time to be replayed together"
-        )
-    return start + np.arange(int(np.floor((stop - start) * rate_hz)) + 1) / rate_hz
+    t, _ = time_base.common_time_base(
+        {f"sensor{i}" + (f" ({r.name})" if r.name else ""): r
+         for i, r in enumerate(recordings)}, rate_hz)
+    return t
 
 
 def replay_recordings(

@@ -148,6 +148,13 @@ class PeopleSimulation:
         """(A, K, 4) the true ``q_offset`` of every sensor (what calibration should find)."""
         return self._fixed["offsets"]
 
+    def pelvis_forward_axis(self, person: int = 0) -> Array:
+        """(3,) the axis of a person's pelvis sensor (its own frame) that points forward out
+        of the body: the heading reference of ``heading="pelvis"``. A segment vector ``v`` is
+        ``rotate(q_offset, v)`` in the sensor's frame (``q_sensor = q_segment ⊗ q_offset*``)."""
+        pelvis = self.skeleton.names.index("pelvis")
+        return quat.rotate(self.mounting[person, pelvis], body.body_axes(self.frame)[1])
+
     @cached_property
     def root_positions_m(self) -> Array:
         """(A, 3) m, each person's root in the reference pose (the grid of the avatars)."""

@@ -56,6 +56,7 @@ from margtrack.live.viewer_panels import (
     JointTrace,
     end_notice,
     export_recording,
+    joints_lines,
     sensor_order,
     sensor_table,
     status_text,
@@ -120,7 +121,9 @@ class LiveViewer:
         gui = self.server.gui
         info = self.engine.info
         gui.add_markdown(f"**margtrack live** · {info.description} · method "
-                         f"`{self.engine.method}`")
+                         f"`{self.engine.method}`"
+                         + (" · no magnetometer (joints constrained)" if self.engine.no_mag
+                            else ""))
         with gui.add_folder("Status"):
             self._status = gui.add_markdown("poses shown: 0")
             self._notice = gui.add_markdown("", visible=False)
@@ -143,12 +146,21 @@ class LiveViewer:
             self._record = gui.add_button("Start recording", disabled=self.engine.avatars is None)
             self._record.on_click(lambda _: self.toggle_recording())
             self._exports = gui.add_markdown(f"exports go to `{self.out_dir.resolve()}`")
+            if self.engine.walking_root:
+                self._reset_root = gui.add_button(
+                    "Reset position", hint="Put the avatar back where it started (its root "
+                    "walks with the feet's contacts once calibrated).")
+                self._reset_root.on_click(lambda _: self.engine.reset_root())
         with gui.add_folder(f"Filter: {self.engine.method}"):
             self._axes_box = gui.add_checkbox("show segment axes", initial_value=False)
             self._axes_box.on_update(lambda _: self.scene.set_axes_visible(self._axes_box.value))
             self._params = ParamControls(gui, lambda: self.engine, self._say)
         with gui.add_folder("Sensors"):
             self._sensors = gui.add_markdown("")
+        if self.engine.no_mag:
+            with gui.add_folder("Joints (no magnetometer)"):
+                self._joints_md = gui.add_markdown("  \n".join(
+                    joints_lines(self.engine.joints)))
 
     @property
     def message(self) -> str:
@@ -243,6 +255,8 @@ class LiveViewer:
             if self.new_engine is not None and not fatal:
                 self._again.visible = True
         self._sensors.content = sensor_table(st.health, self._order)
+        if self.engine.no_mag:
+            self._joints_md.content = "  \n".join(joints_lines(self.engine.joints))
         if self._joint_plot is not None and self._angles is not None:
             self._joint_plot.update(self._angles)
 
@@ -340,6 +354,9 @@ def run_live(
     announce: Callable[[LiveSession], None] | None = None,
     warn: Callable[[str], None] = _warn,
     record: str | Path | None = None,
+    no_mag: bool = False,
+    lever_arms: Mapping[str, Any] | None = None,
+    walking_root: bool = False,
 ) -> LiveSession:
     """Track ``source`` live and serve the 3-D view at ``session.url``.
 
@@ -353,7 +370,8 @@ def run_live(
     token : None: a random token off loopback, none on it; True: a random one anyway;
         a string: that token (12+ URL-safe characters); False: none (refused off loopback).
         See :mod:`margtrack.live.security`.
-    display_hz, height_m, calibrate_at_start, heading, forward_axis : see :class:`Engine`.
+    display_hz, height_m, calibrate_at_start, heading, forward_axis, no_mag, lever_arms,
+    walking_root : see :class:`Engine`.
     out_dir : where "Stop recording and export" writes (default ``./margtrack_live``).
     block : serve until Ctrl-C (or ``duration_s``), then stop everything and return the
         stopped session; ``False`` returns the running session at once (call ``stop()``).
@@ -372,7 +390,8 @@ def run_live(
     def new_engine() -> Engine:
         return Engine(source.info, method, params, height_m=height_m, display_hz=display_hz,
                       heading=heading, forward_axis=forward_axis,
-                      calibrate_at_start=calibrate_at_start)
+                      calibrate_at_start=calibrate_at_start, no_mag=no_mag,
+                      lever_arms=lever_arms, walking_root=walking_root)
 
     engine = new_engine()
     server = guarded_viser_server(host, port, policy)

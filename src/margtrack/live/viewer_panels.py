@@ -183,6 +183,35 @@ def status_text(stats: Any, poses_shown: int, session_s: float, message: str) ->
     )
 
 
+def _cm(vec_m: Sequence[float], std_m: Sequence[float | None]) -> str:
+    """``[x, y, z] ± [sx, sy, sz]`` in cm (no ± for given lever arms)."""
+    text = "[" + ", ".join(f"{100 * v:.1f}" for v in vec_m) + "]"
+    if std_m[0] is None:
+        return text
+    return text + " ± [" + ", ".join(f"{100 * float(v or 0.0):.1f}" for v in std_m) + "]"
+
+
+def joints_lines(joints: Sequence[dict[str, Any]]) -> list[str]:
+    """Lines for people about the constrained joints of ``--no-mag``
+    (:attr:`Engine.joints`): per joint its sensors' lever arms (cm, joint centre to sensor,
+    sensor frames; ± one std when estimated) and its state."""
+    if not joints:
+        return ["no magnetometer: no body model, so no joint constrains a sensor (each one "
+                "6-D, its heading free)"]
+    lines = [f"no magnetometer: {len(joints)} joints constrained, each segment chained to "
+             "its parent (lever arms in cm, joint centre to sensor, sensor frames)"]
+    for j in joints:
+        who = f"{j['person']}/" if j["person"] else ""
+        arms, std = j["lever_arms_m"], j["lever_arms_std_m"]
+        if arms is None:
+            text = "lever arms: not yet"
+        else:
+            text = (f"parent {_cm(arms[0], std[0])}, child {_cm(arms[1], std[1])} "
+                    f"({j['lever_arms_source']})")
+        lines.append(f"- {who}{j['joint']}: {text}; {j['state']}")
+    return lines
+
+
 def end_notice(stats: Any, session_s: float, fatal: str | None, replay: bool,
                again: bool) -> str:
     """The notice shown when the engine has ended: its fatal error, or the end of the
