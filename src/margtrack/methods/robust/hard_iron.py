@@ -17,8 +17,8 @@ square algebraic residual is ``var(y) − 4 o'·cov(x, y) + 4 o'ᵀ C o'``.
 A fit is accepted only when
 
 - the rotation seen spans every direction: the smallest eigenvalue of ``C`` is at least
-  ``COND`` r² (a standard deviation of 0.22 r along the weakest axis, the field direction
-  swinging some ±25° about it; a rotation about one axis puts the samples on a circle,
+  ``COND`` r² (a standard deviation of 0.14 r along the weakest axis, the field direction
+  swinging some ±8° about it; a rotation about one axis puts the samples on a circle,
   eigenvalue 0, and a circle lies on a whole family of spheres);
 - the samples are on the sphere: the rms radial residual (algebraic residual / 2r) is at
   most half of ``mag_norm_tol`` times r (a field whose norm varies by the tolerance that
@@ -31,20 +31,27 @@ An offset moves the field's norm over ±|o| as the sensor turns. A fitted offset
 on only when it is larger than twice ``mag_norm_tol`` times r: the norm gate would then
 reject half of all orientations (those within 60° of the offset's axis or its opposite).
 A smaller one changes the norm by about what the filter already accepts as undisturbed,
-and is also about how far a calibrated sensor's field in a building strays from a sphere
-(calibration residue, gradients): no magnet. A held offset is dropped (to 0) when a fit is
-accepted with one no larger than ``mag_norm_tol`` times r, where the gate would reject no
-orientation (the hysteresis keeps a fit near the bound from switching it on and off, each
-switch restarting the heading's convergence). An offset held while later
-fits fail is dropped when the raw field's norm varies less than the corrected one's (the
-magnet gone). An accepted offset is subtracted from every field sample before any use.
-When it moves by
-more than half the norm tolerance (a magnet found, or moved), the field reference is the
-fit's radius, the dip reference the next sample's, and the heading converges afresh (the
-start-up mean of ``converge_s``). While no fit is accepted but the corrected field's norm
-varies by more than half the tolerance and an offset explains ``EXPLAINED`` of that
-variance (a sphere fit regularised, so a circle is explained too), the field is rejected
-(``moving``): the heading is held on the gyro and flagged ``MAG_DISTURBED``.
+and is about how far a calibrated sensor's field in a building strays from a sphere
+(calibration residue, gradients): no magnet, offset 0. A held offset is dropped (to 0)
+when a fit is accepted with one no larger than ``mag_norm_tol`` times r, where the gate
+would reject no orientation (the hysteresis keeps a fit near the bound from switching it
+on and off, each switch restarting the heading's convergence), or when later fits fail
+and the raw field's norm varies less than the corrected one's (the magnet gone).
+
+An accepted offset is subtracted from every field sample before any use. When it moves
+by more than half the norm tolerance (a magnet found, moved or gone), the field reference
+is the fit's radius, the dip reference the next sample's, and the heading converges
+afresh (the start-up mean of ``converge_s``).
+
+While no fit is accepted but the corrected field's norm varies by more than half the
+tolerance, an offset explains ``EXPLAINED`` of that variance (a sphere fit regularised, so
+a circle is explained too) and the sensor turned (the scatter's middle eigenvalue at
+least ``COND`` |m|²: a norm that changes without rotation scatters the samples along one
+direction only), the field is rejected (``moving``): the heading is held on the gyro and
+flagged ``MAG_DISTURBED``. When not even the regularised fit puts the memory within the
+tolerance of a sphere (rms radial residual above half ``mag_norm_tol`` times |m|), the
+field changed (a magnet put on or taken off, a disturbed room): the sums start again, so
+a new field is not fitted mixed with the old one for several ``hard_iron_tau_s``.
 
 Screened-out samples (all zero: stuck, clipped, non-finite) and samples beyond ``BIG``
 never enter the sums. The sums are updated every sample without branches (the lockstep
@@ -137,20 +144,23 @@ def _solve_sym(c00, c01, c02, c11, c12, c22, d0, d1, d2):
 
 
 @njit(cache=True, inline="always")
-def smallest_eigenvalue(c00, c01, c02, c11, c12, c22):
-    """Smallest eigenvalue of a symmetric 3x3 matrix (the trigonometric closed form)."""
+def eigenvalues(c00, c01, c02, c11, c12, c22):
+    """Eigenvalues (smallest, middle, largest) of a symmetric 3x3 matrix (the
+    trigonometric closed form)."""
     p1 = c01 * c01 + c02 * c02 + c12 * c12
     q = (c00 + c11 + c22) / 3.0
     p2 = (c00 - q) ** 2 + (c11 - q) ** 2 + (c22 - q) ** 2 + 2.0 * p1
     if not p2 > 0.0:
-        return q
+        return q, q, q
     p = math.sqrt(p2 / 6.0)
     b00, b11, b22 = (c00 - q) / p, (c11 - q) / p, (c22 - q) / p
     b01, b02, b12 = c01 / p, c02 / p, c12 / p
     half_det = 0.5 * (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02)
                       + b02 * (b01 * b12 - b11 * b02))
     phi = math.acos(min(1.0, max(-1.0, half_det))) / 3.0
-    return q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    largest = q + 2.0 * p * math.cos(phi)
+    smallest = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    return smallest, 3.0 * q - largest - smallest, largest
 
 
 @njit(cache=True, inline="always")
@@ -208,7 +218,8 @@ def solve_at(st, o, lanes, coef):
         plausible = abs(r - ref0) <= tol * ref0
     else:
         plausible = (r >= EARTH_MIN_UT) & (r <= EARTH_MAX_UT)
-    conditioned = smallest_eigenvalue(c00, c01, c02, c11, c12, c22) >= COND * r2
+    lam_min, lam_mid, _ = eigenvalues(c00, c01, c02, c11, c12, c22)
+    conditioned = lam_min >= COND * r2
     on_sphere = math.sqrt(max(res2, 0.0)) <= tol * r2  # rms radial <= tol / 2 * r
     if plausible & conditioned & on_sphere & (r2 > 0.0):
         o0, o1, o2 = p0 + s0, p1 + s1, p2 + s2
@@ -241,7 +252,15 @@ def solve_at(st, o, lanes, coef):
                                0.5 * d0, 0.5 * d1, 0.5 * d2)
     res2_reg = _residual2(var_y, c00, c01, c02, c11, c12, c22, d0, d1, d2, q0, q1, q2)
     explained = res2_reg <= (1.0 - EXPLAINED) * var_z2
-    st[o + R_HI_MOVING * lanes] = 1.0 if spread & explained else 0.0
+    # and the sensor turned: the directions span a plane at least (a norm that changes
+    # without rotation scatters the samples along one direction only)
+    turned = lam_mid >= COND * mean_z2
+    st[o + R_HI_MOVING * lanes] = 1.0 if spread & explained & turned else 0.0
+    if not math.sqrt(max(res2_reg, 0.0)) <= tol * mean_z2:
+        # no sphere (nor circle) fits the memory: the field changed (a magnet put on or
+        # taken off, a disturbed room); the sums start again from the next sample
+        for k in range(15):
+            st[i + k * lanes] = 0.0
     return moved
 
 
