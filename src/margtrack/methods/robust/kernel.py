@@ -39,8 +39,7 @@ from __future__ import annotations
 import math
 
 from margtrack.estimator import skeleton as contract
-from margtrack.estimator.jit import njit
-from margtrack.estimator.jit import select
+from margtrack.estimator.jit import njit, select
 from margtrack.estimator.quat_kernel import mul
 from margtrack.methods.robust import hard_iron
 from margtrack.methods.robust.gains import (  # noqa: F401 (butterworth_coefficients: kernel.*)
