@@ -189,3 +189,20 @@ def test_lockstep_equals_sensor_by_sensor_with_magnets(monkeypatch):
     np.testing.assert_array_equal(one_by_one.flags, together.flags)
     for key, value in one_by_one.outputs.items():
         np.testing.assert_array_equal(together.outputs[key], value, err_msg=key)
+
+
+def test_a_sample_without_a_usable_field_only_ages_the_sums():
+    # a zero field (the screening's "no measurement": stuck, clipped, non-finite) through
+    # the whole filter: the sums decay by one interval's forgetting and take nothing in
+    rec = _recording(10.0, duration_s=12.0)
+    f = Robust(frame="ENU")
+    f.run(rec)
+    before = f.state.get("hard_iron_sums")[0].copy()
+    assert before[0] > hard_iron.MIN_WEIGHT
+    dt = 1.0 / RATE_HZ
+    f.update(rec.gyr[-1], rec.acc[-1], np.zeros(3), dt=dt)
+    assert f.flags[0] & Flag.MAG_IGNORED
+    decay = 1.0 - dt / RobustParams().hard_iron_tau_s
+    np.testing.assert_allclose(f.state.get("hard_iron_sums")[0], decay * before, rtol=1e-15)
+    f.update(rec.gyr[-1], rec.acc[-1], np.full(3, np.nan), dt=dt)
+    np.testing.assert_allclose(f.state.get("hard_iron_sums")[0], decay**2 * before, rtol=1e-14)
