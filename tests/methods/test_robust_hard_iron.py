@@ -56,7 +56,7 @@ def _fit_rows(samples, coef, dt=0.01):
     row = np.zeros(kernel.N_ROW)
     kernel._sensor_at(row, 0, 1, coef)
     for m in samples:
-        hard_iron.accumulate_at(row, 0, 1, coef, dt, m[0], m[1], m[2], True)
+        hard_iron.accumulate_at(row, 0, 1, coef, dt, m[0], m[1], m[2], True, False)
     moved = hard_iron.solve_at(row, 0, 1, coef)
     return row, moved
 

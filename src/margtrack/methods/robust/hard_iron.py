@@ -90,19 +90,17 @@ def fresh_at(st, o, lanes):
 
 
 @njit(cache=True, inline="always")
-def accumulate_at(st, o, lanes, coef, dt, m0, m1, m2, usable):
+def accumulate_at(st, o, lanes, coef, dt, m0, m1, m2, usable, steady):
     """The sums forgotten over ``dt`` and, if ``usable``, the sample (m0, m1, m2) added
-    with weight ``dt / hard_iron_tau_s``; no branch (``jit.select``)."""
+    with weight ``dt / hard_iron_tau_s``; ``steady`` (the lockstep pass) without a branch
+    (``jit.select``): the origin is set in the scalar pass (``kernel._rare_at``)."""
     w = dt * coef[C_HI_RATE]
     decay = select(w < 1.0, 1.0 - w, 0.0)
     i_sh = o + R_HI_SHIFT * lanes
-    raw2 = m0 * m0 + m1 * m1 + m2 * m2
-    take = usable & (st[i_sh] != st[i_sh]) & (raw2 < BIG)  # the first usable sample
-    s0 = select(take, m0, st[i_sh])
-    s1 = select(take, m1, st[i_sh + lanes])
-    s2 = select(take, m2, st[i_sh + 2 * lanes])
-    st[i_sh], st[i_sh + lanes], st[i_sh + 2 * lanes] = s0, s1, s2
-    x0, x1, x2 = m0 - s0, m1 - s1, m2 - s2
+    if not steady and usable and st[i_sh] != st[i_sh]:  # the first usable sample: origin
+        if m0 * m0 + m1 * m1 + m2 * m2 < BIG:
+            st[i_sh], st[i_sh + lanes], st[i_sh + 2 * lanes] = m0, m1, m2
+    x0, x1, x2 = m0 - st[i_sh], m1 - st[i_sh + lanes], m2 - st[i_sh + 2 * lanes]
     y = x0 * x0 + x1 * x1 + x2 * x2
     ok = usable & (y < BIG)  # (false for nan: no origin yet)
     u = select(ok, w, 0.0)

@@ -146,8 +146,8 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
 def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     """Whether this sample takes one of ``step_at``'s rare branches (no interval, the first
     accelerometer samples since a start, an all-zero accelerometer, gains not cached for
-    the interval, no field reference yet, the hard-iron fit's solve due): those run in
-    ``contract_lanes``' scalar pass."""
+    the interval, no field reference yet, the hard-iron fit's solve due or its origin
+    unset at a usable field): those run in ``contract_lanes``' scalar pass."""
     # (& and |, not and/or: no branches, which would make the lockstep pass's stores
     # around this masked stores)
     ready = (
@@ -160,7 +160,9 @@ def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
         st[o + R_MAG_DIP_REF * lanes] == st[o + R_MAG_DIP_REF * lanes]  # (not nan)
     )
     solve = (coef[C_HI_RATE] > 0.0) & (st[o + R_HI_COUNT * lanes] + 1.0 >= HI_EVERY)
-    return (not (ready & (field_ready | (not has_mag)))) | solve
+    i_sh = o + R_HI_SHIFT * lanes
+    origin = has_mag & ((m0 != 0.0) | (m1 != 0.0) | (m2 != 0.0)) & (st[i_sh] != st[i_sh])
+    return (not (ready & (field_ready | (not has_mag)))) | solve | origin
 
 
 N_X = N_OUT  # what ``run`` writes per sample

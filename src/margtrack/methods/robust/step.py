@@ -334,7 +334,7 @@ def _hard_iron(st, o, lanes, coef, dt, m0, m1, m2, has_mag, steady):
     offset (an all-zero sample stays one) and whether the field moves with the
     orientation unexplained (``hard_iron``)."""
     usable = has_mag & ((m0 != 0.0) | (m1 != 0.0) | (m2 != 0.0))
-    hard_iron.accumulate_at(st, o, lanes, coef, dt, m0, m1, m2, usable)
+    hard_iron.accumulate_at(st, o, lanes, coef, dt, m0, m1, m2, usable, steady)
     i_n = o + R_HI_COUNT * lanes
     count = select(dt > 0.0, st[i_n] + 1.0, st[i_n])
     if not steady and count >= HI_EVERY and coef[C_HI_RATE] > 0.0:
