@@ -263,6 +263,34 @@ def solve_at(st, o, lanes, coef):
 
 
 @njit(cache=True, inline="always")
+def sample_at(st, o, lanes, coef, dt, m0, m1, m2, has_mag, steady):
+    """The sample into the hard-iron sums, the fit solved when due (the scalar pass: the
+    lockstep pass is never due, ``kernel._rare_at``); returns the field less the accepted
+    offset (an all-zero sample stays one) and whether the field moves with the
+    orientation unexplained (the module docstring)."""
+    usable = has_mag & ((m0 != 0.0) | (m1 != 0.0) | (m2 != 0.0))
+    accumulate_at(st, o, lanes, coef, dt, m0, m1, m2, usable, steady)
+    i_n = o + R_HI_COUNT * lanes
+    count = select(dt > 0.0, st[i_n] + 1.0, st[i_n])
+    if not steady and count >= HI_EVERY and coef[C_HI_RATE] > 0.0:
+        count = 0.0
+        if solve_at(st, o, lanes, coef):
+            # a new offset: the corrected field's reference and heading start afresh
+            r = st[o + R_HI_RADIUS * lanes]
+            st[o + R_MAG_NORM_REF * lanes] = r
+            st[o + R_CAND_NORM * lanes] = r
+            st[o + R_MAG_DIP_REF * lanes] = math.nan
+            st[o + R_CAND_DIP * lanes] = math.nan
+            st[o + R_CAND_S * lanes] = 0.0
+            st[o + R_HEADING_N * lanes] = 0.0
+            st[o + R_SINCE_START * lanes] = 0.0
+    st[i_n] = count
+    i_off = o + R_HI_OFFSET * lanes
+    return (select(usable, m0 - st[i_off], m0), select(usable, m1 - st[i_off + lanes], m1),
+            select(usable, m2 - st[i_off + 2 * lanes], m2), st[o + R_HI_MOVING * lanes] > 0.5)
+
+
+@njit(cache=True, inline="always")
 def offset_outputs_at(st, o, lanes):
     """The accepted offset (3), nan until one is accepted."""
     i_off = o + R_HI_OFFSET * lanes

@@ -328,34 +328,6 @@ def _heading_steady(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, has_mag,
 
 
 @njit(cache=True, inline="always")
-def _hard_iron(st, o, lanes, coef, dt, m0, m1, m2, has_mag, steady):
-    """The sample into the hard-iron sums, the fit solved when due (the scalar pass: the
-    lockstep pass is never due, ``kernel._rare_at``); returns the field less the accepted
-    offset (an all-zero sample stays one) and whether the field moves with the
-    orientation unexplained (``hard_iron``)."""
-    usable = has_mag & ((m0 != 0.0) | (m1 != 0.0) | (m2 != 0.0))
-    hard_iron.accumulate_at(st, o, lanes, coef, dt, m0, m1, m2, usable, steady)
-    i_n = o + R_HI_COUNT * lanes
-    count = select(dt > 0.0, st[i_n] + 1.0, st[i_n])
-    if not steady and count >= HI_EVERY and coef[C_HI_RATE] > 0.0:
-        count = 0.0
-        if hard_iron.solve_at(st, o, lanes, coef):
-            # a new offset: the corrected field's reference and heading start afresh
-            r = st[o + R_HI_RADIUS * lanes]
-            st[o + R_MAG_NORM_REF * lanes] = r
-            st[o + R_CAND_NORM * lanes] = r
-            st[o + R_MAG_DIP_REF * lanes] = math.nan
-            st[o + R_CAND_DIP * lanes] = math.nan
-            st[o + R_CAND_S * lanes] = 0.0
-            st[o + R_HEADING_N * lanes] = 0.0
-            st[o + R_SINCE_START * lanes] = 0.0
-    st[i_n] = count
-    i_off = o + R_HI_OFFSET * lanes
-    return (select(usable, m0 - st[i_off], m0), select(usable, m1 - st[i_off + lanes], m1),
-            select(usable, m2 - st[i_off + 2 * lanes], m2), st[o + R_HI_MOVING * lanes] > 0.5)
-
-
-@njit(cache=True, inline="always")
 def step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, qa, qo, xa, xo,
             outs, steady):
     """One screened sample (an all-zero acc or mag: no measurement; dt 0: nothing to
@@ -409,7 +381,8 @@ def step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag,
     i_c = o + R_Q_ACC * lanes
     q6w, q6x, q6y, q6z = mul(st[i_c], st[i_c + lanes], st[i_c + 2 * lanes], st[i_c + 3 * lanes],
                              st[i_g], st[i_g + lanes], st[i_g + 2 * lanes], st[i_g + 3 * lanes])
-    m0, m1, m2, moving = _hard_iron(st, o, lanes, coef, dt, m0, m1, m2, has_mag, steady)
+    m0, m1, m2, moving = hard_iron.sample_at(st, o, lanes, coef, dt, m0, m1, m2, has_mag,
+                                             steady)
     disturbed = False
     if steady:  # (without a field too: a branch on has_mag would mask the stores)
         mx, my, mz = rotate(q6w, q6x, q6y, q6z, m0, m1, m2)
