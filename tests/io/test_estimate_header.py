@@ -94,7 +94,7 @@ def test_hdf5_datasets_carry_a_unit(run, tmp_path):
         with h5py.File(path) as f:
             units = {k: f[k].attrs["unit"] for k in f}
         assert units == {"t": "s", "quat": "1", "quat6d": "1", "gyr_bias_rad_s": "rad/s",
-                         "gyr_bias_sd_rad_s": "rad/s", "flags": "bits"}
+                         "gyr_bias_sd_rad_s": "rad/s", "mag_offset_ut": "uT", "flags": "bits"}
         assert io.read_estimate(path).units == units
 
 

@@ -142,7 +142,8 @@ def test_run_into_refuses_buffers_of_the_wrong_shape_or_layout_naming_them():
     est = methods.create("robust", rate_hz=RATE_HZ)
     gyr, acc, mag = (v[:, :4].copy() for v in _signals(3, 24))
     t = np.arange(4) / RATE_HZ
-    q, x = np.empty((3, 4, 4)), np.empty((3, 4, 10))
+    # robust's extra outputs: 6-D quaternion, bias, its deviation, hard-iron offset
+    q, x = np.empty((3, 4, 4)), np.empty((3, 4, 13))
     flags = np.empty((3, 4), dtype=np.uint16)
     with pytest.raises(ValueError, match=r"q_out must be C-contiguous float64 of shape \(3, 4"):
         est.run_into(t, gyr, acc, mag, np.empty((3, 8, 4))[:, :4], x, flags)

@@ -101,9 +101,15 @@ def test_kernel_extreme_screened_samples_never_give_nan():
     with np.errstate(over="ignore", under="ignore"):  # numpy scalars when the JIT is off
         for i in range(n):
             kernel._step(row, coef, dt[i], *gyr[i], *acc[i], *mag[i], True, q[i], x[i])
-            unset = (kernel.R_MAG_DIP_REF, kernel.R_CAND_DIP)  # nan: not known yet
+            # nan: not known yet (the dip references, the hard-iron fit's origin until
+            # the first usable field)
+            unset = (kernel.R_MAG_DIP_REF, kernel.R_CAND_DIP, *range(kernel.R_HI_SHIFT,
+                                                                     kernel.R_HI_SHIFT + 3))
             assert np.isfinite(np.delete(row, unset)).all(), i
-    assert np.isfinite(q).all() and np.isfinite(x).all()
+    assert np.isfinite(q).all() and np.isfinite(x[:, : kernel.X_MAG_OFFSET]).all()
+    # the hard-iron offset: nan until a fit is accepted, finite after
+    offset = x[:, kernel.X_MAG_OFFSET :]
+    assert np.all(np.isfinite(offset) | np.isnan(offset).all(axis=1, keepdims=True))
     np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
     np.testing.assert_array_equal(q[300], q[299])
 

@@ -67,6 +67,11 @@ from margtrack.calibration.magnetometer import (
     min_max,
     sphere_coverage,
 )
+from margtrack.calibration.online_hard_iron import (
+    hard_iron_calibration,
+    last_offset_ut,
+    save_hard_iron,
+)
 from margtrack.calibration.procedure_result import GuidedResult
 from margtrack.calibration.reference import ReferenceVectors, reference_vectors
 from margtrack.calibration.simulate_procedure import simulate_procedure
@@ -106,8 +111,10 @@ __all__ = [
     "fit_norm",
     "gyro_null",
     "gyro_scale",
+    "hard_iron_calibration",
     "identify_noise",
     "integrate_rotation",
+    "last_offset_ut",
     "load_calibration",
     "min_max",
     "nearest_axes",
@@ -117,6 +124,7 @@ __all__ = [
     "rotation_estimate",
     "run_guided",
     "save_calibration",
+    "save_hard_iron",
     "segment_means",
     "simulate_procedure",
     "six_position",

@@ -23,8 +23,17 @@ Built from the seeds' ideas and what users of current filters expect:
 A restart after a gap keeps what the filter knows of the sensor (gyro bias, its variance,
 the field reference) and starts the orientation, low-passes and rest detector afresh.
 
+- a magnet carried by the sensor (a hard-iron offset that turns with it) is estimated
+  online by a sphere fit over the rotation seen (``hard_iron_tau_s``;
+  ``methods/robust/hard_iron.py``), accepted only when well conditioned, on the sphere and
+  of an earth field's radius, and then subtracted from every field sample; while none is
+  accepted and the field's norm is seen to move with the orientation, the field is
+  rejected and the heading held on the gyro.
+
 Outputs: ``quat`` (9-D with a magnetometer, else 6-D), ``quat6d`` (always, heading free,
-output frame), ``gyr_bias_rad_s`` and ``gyr_bias_sd_rad_s`` (rad/s, body axes); rest and
+output frame), ``gyr_bias_rad_s`` and ``gyr_bias_sd_rad_s`` (rad/s, body axes),
+``mag_offset_ut`` (the accepted hard-iron offset, body axes, the field's unit: µT for an
+earth field in µT; nan until one is accepted); rest and
 rejected field disturbances are the flags ``Flag.REST`` and ``Flag.MAG_DISTURBED`` of
 ``Estimate.flags``.
 
@@ -127,6 +136,12 @@ class RobustParams(Params):
     mag_reference_tau_s: float = param(
         60.0, unit="s", gt=0, help="time constant of the field reference tracking"
     )
+    hard_iron_tau_s: float = param(
+        30.0,
+        unit="s",
+        ge=0,
+        help="memory of the online hard-iron (attached magnet) sphere fit (0: off)",
+    )
 
     def coefficients(self) -> Array:
         """The kernel's coefficient vector (SI units, rad)."""
@@ -148,6 +163,7 @@ class RobustParams(Params):
         c[kernel.C_MAG_REF_TAU] = self.mag_reference_tau_s
         c[kernel.C_NED] = 1.0 if self.frame == "NED" else 0.0
         c[kernel.C_CONVERGE] = self.converge_s
+        c[kernel.C_HI_RATE] = 1.0 / self.hard_iron_tau_s if self.hard_iron_tau_s > 0 else 0.0
         c[kernel.C_BIAS_SIGMA0] = rad(self.bias_sigma_init_deg_s)
         c[kernel.C_MAG_NORM_REF0] = self.mag_norm_ref or 0.0
         c[kernel.C_MAG_DIP_REF0] = (
@@ -191,8 +207,15 @@ class Robust(CompiledEstimator[RobustParams]):
         "mag_cand_norm": (kernel.R_CAND_NORM, 1),
         "mag_cand_dip_rad": (kernel.R_CAND_DIP, 1),
         "mag_cand_s": (kernel.R_CAND_S, 1),
+        "hard_iron_origin": (kernel.R_HI_SHIFT, 3),
+        "hard_iron_sums": (kernel.R_HI_SUMS, 15),
+        "mag_offset_ut": (kernel.R_HI_OFFSET, 3),
+        "hard_iron_radius": (kernel.R_HI_RADIUS, 1),
+        "mag_moves_with_sensor": (kernel.R_HI_MOVING, 1),
+        "hard_iron_count": (kernel.R_HI_COUNT, 1),
     }
-    outputs_layout = (("quat6d", 4), ("gyr_bias_rad_s", 3), ("gyr_bias_sd_rad_s", 3))
+    outputs_layout = (("quat6d", 4), ("gyr_bias_rad_s", 3), ("gyr_bias_sd_rad_s", 3),
+                      ("mag_offset_ut", 3))
 
     def _coefficients(self) -> Array:
         return self._params.coefficients()

@@ -29,8 +29,9 @@ interval-dependent gains in ``methods/robust/gains.py``; the step, on a strided 
 ``methods/robust/step.py``.
 
 ``_step`` returns the flag bits ``REST`` and ``MAG_DISTURBED``; its extra outputs
-(``x_out``, ``N_OUT``) are the 6-D quaternion (4, output frame), the bias (3, rad/s) and
-its standard deviation (3, rad/s).
+(``x_out``, ``N_OUT``) are the 6-D quaternion (4, output frame), the bias (3, rad/s),
+its standard deviation (3, rad/s) and the accepted hard-iron offset (3, the field's unit,
+body axes; nan until one is accepted: ``methods/robust/hard_iron.py``).
 """
 
 from __future__ import annotations
@@ -38,8 +39,9 @@ from __future__ import annotations
 import math
 
 from margtrack.estimator import skeleton as contract
-from margtrack.estimator.jit import njit
+from margtrack.estimator.jit import njit, select
 from margtrack.estimator.quat_kernel import mul
+from margtrack.methods.robust import hard_iron
 from margtrack.methods.robust.gains import (  # noqa: F401 (butterworth_coefficients: kernel.*)
     butterworth_coefficients,
     gains_ready_at,
@@ -52,8 +54,8 @@ from margtrack.methods.robust.step import step_at as _step_at
 @njit(cache=True, inline="always")
 def _sensor_at(st, o, lanes, coef):
     """What is known of a sensor before its first sample: bias 0 with the initial
-    variance, the field reference as given (or none). The row's slot j is
-    ``st[o + j * lanes]``."""
+    variance, the field reference as given (or none), no hard-iron fit. The row's slot j
+    is ``st[o + j * lanes]``."""
     var0 = coef[C_BIAS_SIGMA0] ** 2
     for k in range(3):
         st[o + (R_BIAS + k) * lanes] = 0.0
@@ -64,6 +66,7 @@ def _sensor_at(st, o, lanes, coef):
     st[o + R_CAND_NORM * lanes] = 0.0
     st[o + R_CAND_DIP * lanes] = math.nan
     st[o + R_CAND_S * lanes] = 0.0
+    hard_iron.fresh_at(st, o, lanes)
 
 
 @njit(cache=True)
@@ -106,7 +109,11 @@ def _start(row, coef, first, qw, qx, qy, qz):
 
 @njit(cache=True, inline="always")
 def _hold_at(st, o, lanes, coef, xa, xo, outs):
-    """Extra outputs of the current state (before the first start: the held quaternion)."""
+    """Extra outputs of the current state (before the first start: the held quaternion).
+    The sample counts for the hard-iron fit's solve (no solve here: no sample is used), so
+    sensors made together solve at the same samples."""
+    i_n = o + R_HI_COUNT * lanes
+    st[i_n] = select(st[i_n] + 1.0 >= HI_EVERY, 0.0, st[i_n] + 1.0)
     if st[o + contract.K_STARTS * lanes] == 0.0:
         q = o + contract.K_Q * lanes
         outputs_at(st, o, lanes, False, st[q], st[q + lanes], st[q + 2 * lanes],
@@ -139,7 +146,8 @@ def _step(row, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, q_out, x_o
 def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     """Whether this sample takes one of ``step_at``'s rare branches (no interval, the first
     accelerometer samples since a start, an all-zero accelerometer, gains not cached for
-    the interval, no field reference yet): those run in ``contract_lanes``' scalar pass."""
+    the interval, no field reference yet, the hard-iron fit's solve due or its origin
+    unset at a usable field): those run in ``contract_lanes``' scalar pass."""
     # (& and |, not and/or: no branches, which would make the lockstep pass's stores
     # around this masked stores)
     ready = (
@@ -151,7 +159,10 @@ def _rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
     field_ready = (st[o + R_MAG_NORM_REF * lanes] > 0.0) & (
         st[o + R_MAG_DIP_REF * lanes] == st[o + R_MAG_DIP_REF * lanes]  # (not nan)
     )
-    return not (ready & (field_ready | (not has_mag)))
+    solve = (coef[C_HI_RATE] > 0.0) & (st[o + R_HI_COUNT * lanes] + 1.0 >= HI_EVERY)
+    i_sh = o + R_HI_SHIFT * lanes
+    origin = has_mag & ((m0 != 0.0) | (m1 != 0.0) | (m2 != 0.0)) & (st[i_sh] != st[i_sh])
+    return (not (ready & (field_ready | (not has_mag)))) | solve | origin
 
 
 N_X = N_OUT  # what ``run`` writes per sample

@@ -23,6 +23,18 @@ One sensor's state is a flat row: the contract's slots, then these (offsets from
 ``R_CAND_NORM``    1      a new steady field's norm, candidate reference; kept
 ``R_CAND_DIP``     1      its dip, rad; kept
 ``R_CAND_S``       1      how long the candidate has been steady, s; kept
+``R_HI_SHIFT``     3      origin of the hard-iron sums: the first usable field (nan: none
+                          yet); kept (``methods/robust/hard_iron.py``)
+``R_HI_SUMS``      15     the sphere fit's forgotten sums of the field less the origin x
+                          and of y = |x|²: weight, x (3), x x^T (xx, xy, xz, yy, yz, zz),
+                          y x (3), y, y²; kept
+``R_HI_OFFSET``    3      the accepted hard-iron offset, body axes, the field's unit (0:
+                          none); subtracted from every field sample; kept
+``R_HI_RADIUS``    1      the accepted fit's radius (0: none accepted yet); kept
+``R_HI_MOVING``    1      1: the field's norm moves with the orientation and no offset
+                          explains it (the field is rejected); kept
+``R_HI_COUNT``     1      samples with an interval since the row was made, modulo
+                          ``HI_EVERY`` (the fit is solved when it wraps); kept
 ``R_GAINS``        23     derived, not state: two slots of 11, each the interval (s)
                           and the four time constants its gains were computed for, then
                           k_rest, k_ref, k_mag and the Butterworth (b0, a1, a2); then
@@ -42,6 +54,7 @@ __all__ = [  # every constant: methods/robust/kernel.py takes them all
     "C_BIAS_SIGMA0",
     "C_BIAS_WALK",
     "C_CONVERGE",
+    "C_HI_RATE",
     "C_MAG_DIP_REF0",
     "C_MAG_DIP_TOL",
     "C_MAG_NEW_REF_T",
@@ -64,6 +77,7 @@ __all__ = [  # every constant: methods/robust/kernel.py takes them all
     "G_REST_TAU",
     "G_TAU_ACC",
     "G_TAU_MAG",
+    "HI_EVERY",
     "LP_EMPTY",
     "LP_FILTER",
     "LP_FIRST",
@@ -87,6 +101,12 @@ __all__ = [  # every constant: methods/robust/kernel.py takes them all
     "R_GYR_REST",
     "R_HEADING",
     "R_HEADING_N",
+    "R_HI_COUNT",
+    "R_HI_MOVING",
+    "R_HI_OFFSET",
+    "R_HI_RADIUS",
+    "R_HI_SHIFT",
+    "R_HI_SUMS",
     "R_LP_STAGE",
     "R_MAG_DIP_REF",
     "R_MAG_NORM_REF",
@@ -96,6 +116,7 @@ __all__ = [  # every constant: methods/robust/kernel.py takes them all
     "R_STILL",
     "X_BIAS",
     "X_BIAS_SD",
+    "X_MAG_OFFSET",
     "X_QUAT6",
 ]
 
@@ -128,7 +149,8 @@ C_CONVERGE = 15  # s, longest start-up phase of the heading (0: none)
 C_BIAS_SIGMA0 = 16  # rad/s, initial standard deviation of the bias
 C_MAG_NORM_REF0 = 17  # initial field norm reference, the field's unit (0: the first sample)
 C_MAG_DIP_REF0 = 18  # initial dip reference, rad (nan: the first sample)
-N_COEF = 19
+C_HI_RATE = 19  # 1/s, forgetting rate of the hard-iron fit (1 / hard_iron_tau_s; 0: off)
+N_COEF = 20
 
 # -- row layout (module docstring) ----------------------------------------------------------
 R_Q_GYR = contract.N_CONTRACT
@@ -150,7 +172,13 @@ R_MAG_DIP_REF = R_MAG_NORM_REF + 1
 R_CAND_NORM = R_MAG_DIP_REF + 1
 R_CAND_DIP = R_CAND_NORM + 1
 R_CAND_S = R_CAND_DIP + 1
-R_GAINS = R_CAND_S + 1
+R_HI_SHIFT = R_CAND_S + 1
+R_HI_SUMS = R_HI_SHIFT + 3
+R_HI_OFFSET = R_HI_SUMS + 15
+R_HI_RADIUS = R_HI_OFFSET + 3
+R_HI_MOVING = R_HI_RADIUS + 1
+R_HI_COUNT = R_HI_MOVING + 1
+R_GAINS = R_HI_COUNT + 1
 # offsets within a slot of R_GAINS: the key (interval, time constants), then the gains
 G_DT, G_TAU_ACC, G_TAU_MAG, G_REST_TAU, G_REF_TAU, G_K_REST, G_K_REF, G_K_MAG, G_BW = range(9)
 N_GAINS = G_BW + 3  # (b0, a1, a2) last
@@ -161,4 +189,8 @@ N_ROW = R_GAINS_IN_USE + 1
 X_QUAT6 = 0
 X_BIAS = 4
 X_BIAS_SD = 7
-N_OUT = 10
+X_MAG_OFFSET = 10  # 3: the accepted hard-iron offset (nan until one is accepted)
+N_OUT = 13
+
+#: the hard-iron fit is solved once every this many samples (in the scalar pass)
+HI_EVERY = 128

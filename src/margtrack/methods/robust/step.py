@@ -24,6 +24,7 @@ import math
 from margtrack.estimator.fastmath import atan2, sincos
 from margtrack.estimator.jit import keep, njit, select
 from margtrack.estimator.quat_kernel import exp_half, mul, normalized
+from margtrack.methods.robust import hard_iron
 from margtrack.methods.robust.gains import (
     _bw_hold,
     _bw_step,
@@ -69,7 +70,7 @@ def to_output_frame(ned, w, x, y, z):
 @njit(cache=True, inline="always")
 def outputs_at(st, o, lanes, ned, q6w, q6x, q6y, q6z, xa, xo, outs):
     """Extra output k to ``xa[xo + k * outs]``: the 6-D quaternion (ENU in; to NED when
-    ``ned``), the bias and its deviation."""
+    ``ned``), the bias, its deviation and the accepted hard-iron offset (nan: none)."""
     q6w, q6x, q6y, q6z = to_output_frame(ned, q6w, q6x, q6y, q6z)
     xa[xo + X_QUAT6 * outs], xa[xo + (X_QUAT6 + 1) * outs] = q6w, q6x
     xa[xo + (X_QUAT6 + 2) * outs], xa[xo + (X_QUAT6 + 3) * outs] = q6y, q6z
@@ -80,6 +81,9 @@ def outputs_at(st, o, lanes, ned, q6w, q6x, q6y, q6z, xa, xo, outs):
     xa[xo + X_BIAS_SD * outs] = st[i_sd]
     xa[xo + (X_BIAS_SD + 1) * outs] = st[i_sd + lanes]
     xa[xo + (X_BIAS_SD + 2) * outs] = st[i_sd + 2 * lanes]
+    h0, h1, h2 = hard_iron.offset_outputs_at(st, o, lanes)
+    xa[xo + X_MAG_OFFSET * outs], xa[xo + (X_MAG_OFFSET + 1) * outs] = h0, h1
+    xa[xo + (X_MAG_OFFSET + 2) * outs] = h2
 
 
 @njit(cache=True, inline="always")
@@ -206,9 +210,10 @@ def _incline(st, o, lanes, coef, b0, a1, a2, step, x0, x1, x2, rest, steady):
 
 
 @njit(cache=True, inline="always")
-def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz):
+def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, moving):
     """Heading from the horizontal field (004's vector rejection), unless the field's norm
-    or dip disagrees with the tracked reference; returns whether it did (disturbed).
+    or dip disagrees with the tracked reference or the norm moves with the orientation
+    (``moving``: ``hard_iron``); returns whether it did (disturbed).
     (mx, my, mz): the field in the level frame; ``k_ref``, ``k_mag``: the interval's gains
     (read only when step > 0). The lockstep pass has :func:`_heading_steady`."""
     m_norm = math.sqrt(mx * mx + my * my + mz * mz)
@@ -228,8 +233,10 @@ def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz):
             st[i_dref] = dip
             st[i_cd] = dip
         ref_n, ref_d = st[i_nref], st[i_dref]
-        disturbed = (abs(m_norm - ref_n) > coef[C_MAG_NORM_TOL] * ref_n) | (
-            abs(dip - ref_d) > coef[C_MAG_DIP_TOL]
+        disturbed = (
+            (abs(m_norm - ref_n) > coef[C_MAG_NORM_TOL] * ref_n)
+            | (abs(dip - ref_d) > coef[C_MAG_DIP_TOL])
+            | moving
         )
         if step > 0.0:
             if not disturbed:
@@ -278,7 +285,7 @@ def _heading(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz):
 
 
 @njit(cache=True, inline="always")
-def _heading_steady(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, has_mag):
+def _heading_steady(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, has_mag, moving):
     """:func:`_heading` in the lockstep pass (both references known, step > 0; the field
     used only with ``has_mag``): the same values, each slot stored whatever the branches
     (``jit.select``: the new value or the old), as a store in a branch is a masked store."""
@@ -293,6 +300,7 @@ def _heading_steady(st, o, lanes, coef, k_ref, k_mag, step, mx, my, mz, has_mag)
     disturbed = usable & (
         (abs(m_norm - ref_n) > coef[C_MAG_NORM_TOL] * ref_n)
         | (abs(dip - ref_d) > coef[C_MAG_DIP_TOL])
+        | moving
     )
     accepted = usable & (not disturbed)
     # accepted: the heading moves (start-up: the mean of the measurements, _heading)
@@ -373,17 +381,20 @@ def step_at(st, o, lanes, coef, dt, g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag,
     i_c = o + R_Q_ACC * lanes
     q6w, q6x, q6y, q6z = mul(st[i_c], st[i_c + lanes], st[i_c + 2 * lanes], st[i_c + 3 * lanes],
                              st[i_g], st[i_g + lanes], st[i_g + 2 * lanes], st[i_g + 3 * lanes])
+    m0, m1, m2, moving = hard_iron.sample_at(st, o, lanes, coef, dt, m0, m1, m2, has_mag,
+                                             steady)
     disturbed = False
     if steady:  # (without a field too: a branch on has_mag would mask the stores)
         mx, my, mz = rotate(q6w, q6x, q6y, q6z, m0, m1, m2)
-        disturbed = _heading_steady(st, o, lanes, coef, k_ref, k_mag, dt, mx, my, mz, has_mag)
+        disturbed = _heading_steady(st, o, lanes, coef, k_ref, k_mag, dt, mx, my, mz, has_mag,
+                                    moving)
         sin_half, cos_half = sincos(0.5 * st[o + R_HEADING * lanes])
         ow, ox, oy, oz = mul(cos_half, 0.0, 0.0, sin_half, q6w, q6x, q6y, q6z)
         ow, ox = select(has_mag, ow, q6w), select(has_mag, ox, q6x)
         oy, oz = select(has_mag, oy, q6y), select(has_mag, oz, q6z)
     elif has_mag:
         mx, my, mz = rotate(q6w, q6x, q6y, q6z, m0, m1, m2)  # the field in the level frame
-        disturbed = _heading(st, o, lanes, coef, k_ref, k_mag, dt, mx, my, mz)
+        disturbed = _heading(st, o, lanes, coef, k_ref, k_mag, dt, mx, my, mz, moving)
         sin_half, cos_half = sincos(0.5 * st[o + R_HEADING * lanes])
         ow, ox, oy, oz = mul(cos_half, 0.0, 0.0, sin_half, q6w, q6x, q6y, q6z)
     else:
