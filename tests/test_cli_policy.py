@@ -50,7 +50,7 @@ def test_run_reports_gaps_and_clipped_rates_and_writes_the_flags(broken_file, tm
     assert "GYR_CLIPPED 1 (first at sample 500)" in result.output
     with h5py.File(out) as f:
         flags = f["flags"][:]
-        assert flags[1500] == Flag.GAP and flags[500] == Flag.GYR_CLIPPED
+        assert flags[1500] == Flag.GAP | Flag.INITIALISING and flags[500] == Flag.GYR_CLIPPED
         assert np.isfinite(f["quat"][:]).all()
 
 
