@@ -61,7 +61,7 @@ def test_csv_output_carries_integer_flags(broken_file, tmp_path):
     lines = [x for x in out.read_text().splitlines() if not x.startswith("#")]
     header = lines[0].split(",")
     col = header.index("flags")
-    assert lines[1 + 1500].split(",")[col] == str(int(Flag.GAP))
+    assert lines[1 + 1500].split(",")[col] == str(int(Flag.GAP | Flag.INITIALISING))
     assert "flags=bits" in out.read_text().splitlines()[2]  # the units line says so
 
 
