@@ -61,11 +61,7 @@ W_MAG = 13  # 3: sum of the field samples that agree with the reference, in the 
 W_N_MAG = 16  # how many agree
 W_N_OFF = 17  # field samples off the reference's norm (or flagged MAG_DISTURBED)
 W_PENDING = 18  # 1: a gap after a start; the next start is a restart, from a window
-#: the window's slots, padded to a multiple of 8 (a cache line of float64): the methods'
-#: slots after the contract's keep their alignment, so a kernel compiled with
-#: reassociating fast math (the EKF's) vectorises as before and a recording without a gap
-#: gives the same bits as before the window was added
-N_WINDOW = 24
+N_WINDOW = 19
 
 #: an acceleration counts toward inclination in gentle motion while | |a| - g | < ACC_TOL g:
 #: the accelerometers' own scale error and a walking body's vertical bounce stay inside it,
