@@ -50,7 +50,7 @@ def test_run_reports_gaps_and_clipped_rates_and_writes_the_flags(broken_file, tm
     assert "GYR_CLIPPED 1 (first at sample 500)" in result.output
     with h5py.File(out) as f:
         flags = f["flags"][:]
-        assert flags[1500] == Flag.GAP and flags[500] == Flag.GYR_CLIPPED
+        assert flags[1500] == Flag.GAP | Flag.INITIALISING and flags[500] == Flag.GYR_CLIPPED
         assert np.isfinite(f["quat"][:]).all()
 
 
@@ -61,7 +61,7 @@ def test_csv_output_carries_integer_flags(broken_file, tmp_path):
     lines = [x for x in out.read_text().splitlines() if not x.startswith("#")]
     header = lines[0].split(",")
     col = header.index("flags")
-    assert lines[1 + 1500].split(",")[col] == str(int(Flag.GAP))
+    assert lines[1 + 1500].split(",")[col] == str(int(Flag.GAP | Flag.INITIALISING))
     assert "flags=bits" in out.read_text().splitlines()[2]  # the units line says so
 
 

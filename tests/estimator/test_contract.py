@@ -37,15 +37,37 @@ def test_repeated_timestamps_across_runs_are_skipped_and_held():
     np.testing.assert_array_equal(again.quat, np.tile(first.quat[-1], (10, 1)))
 
 
-def test_a_clock_reset_restarts_from_the_sample():
-    gyr, acc, mag = _signals(20)
-    t = np.r_[np.arange(10) * 0.01 + 100.0, np.arange(10) * 0.01]  # the device rebooted
+def _window_restart(gyr, acc, mag, i0, i1, dt):
+    """The restart's orientation at sample i1 after a gap at i0, written out
+    (estimator/restart_kernel.py): samples i0..i1 carried into i0's frame by the gyroscope,
+    the accelerations near g and the fields averaged there, TRIAD, carried to i1."""
+    r = np.array([1.0, 0.0, 0.0, 0.0])
+    a_sum, m_sum = np.zeros(3), np.zeros(3)
+    for k in range(i0, i1 + 1):
+        if k > i0:
+            r = quat.integrate(r, gyr[k], dt)
+        if abs(np.linalg.norm(acc[k]) - 9.81) < 0.981:
+            a_sum += quat.rotate(r, acc[k])
+        m_sum += quat.rotate(r, mag[k])
+    q_first = initial_orientation(a_sum[None], m_sum[None], "ENU")[0]
+    return quat.canonical(quat.multiply(q_first, r))
+
+
+def test_a_clock_reset_restarts_from_a_window():
+    gyr, acc, mag = _signals(70)
+    t = np.r_[np.arange(10) * 0.01 + 100.0, np.arange(60) * 0.01]  # the device rebooted
     est = GyroIntegration().run(gyr=gyr, acc=acc, mag=mag, t=t)
-    assert est.flags[10] == Flag.GAP | Flag.CLOCK
-    q_restart = initial_orientation(acc[10:11], mag[10:11], "ENU")[0]
-    np.testing.assert_allclose(est.quat[10], q_restart, atol=1e-15)
+    assert est.flags[10] == Flag.GAP | Flag.CLOCK | Flag.INITIALISING
+    # the window: 0.4 s of samples, the output meanwhile the window's orientation so far
+    i1 = 10 + int(np.argmin(est.flags[10:] & Flag.INITIALISING))
+    assert 49 <= i1 <= 51 and not est.flags[i1:].any()
+    np.testing.assert_allclose(est.quat[i1], _window_restart(gyr, acc, mag, 10, i1, 0.01),
+                               atol=1e-12)
+    np.testing.assert_allclose(est.quat[12], _window_restart(gyr, acc, mag, 10, 12, 0.01),
+                               atol=1e-12)
     # and integrates normally from there
-    np.testing.assert_allclose(est.quat[11], quat.integrate(q_restart, gyr[11], 0.01), atol=1e-14)
+    np.testing.assert_allclose(est.quat[i1 + 1], quat.integrate(est.quat[i1], gyr[i1 + 1], 0.01),
+                               atol=1e-14)
 
 
 def test_a_repeated_timestamp_inside_a_run_is_skipped():
@@ -57,15 +79,20 @@ def test_a_repeated_timestamp_inside_a_run_is_skipped():
 
 
 def test_a_gap_is_not_integrated_and_restarts_keeping_alignment():
-    gyr, acc, mag = _signals(30)
-    t = np.arange(30) * 0.01
+    gyr, acc, mag = _signals(80)
+    t = np.arange(80) * 0.01
     t[15:] += 2.0
     est = GyroIntegration().run(gyr=gyr, acc=acc, mag=mag, t=t)
-    assert est.quat.shape == (30, 4)
-    assert est.flags[15] == Flag.GAP and not est.flags[16:].any()
+    assert est.quat.shape == (80, 4)
+    assert est.flags[15] == Flag.GAP | Flag.INITIALISING
+    i1 = 15 + int(np.argmin(est.flags[15:] & Flag.INITIALISING))
+    assert not est.flags[i1:].any()
+    # the gap's sample alone: what a one-sample start gives
     np.testing.assert_allclose(
         est.quat[15], initial_orientation(acc[15:16], mag[15:16], "ENU")[0], atol=1e-15
     )
+    np.testing.assert_allclose(est.quat[i1], _window_restart(gyr, acc, mag, 15, i1, 0.01),
+                               atol=1e-12)
 
 
 def test_a_nan_sample_is_flagged_and_the_rest_is_processed():

@@ -48,8 +48,13 @@ class Flag(enum.IntFlag):
     MAG_DISTURBED = 1 << 6
     #: the method detected rest
     REST = 1 << 7
-    #: no usable sample since the start or the last restart: the output is held
+    #: no usable sample since the start (the output is held), or inside a restart's window
+    #: after a gap (the output is the window's orientation so far)
     INITIALISING = 1 << 8
+    #: a restart after a gap kept the heading of the orientation before the gap: the field
+    #: after the gap did not agree with the reference learned before it (or none was
+    #: usable), so the heading is a guess until the method corrects it from the field again
+    HEADING_CARRIED = 1 << 9
 
 
 #: flags that say something was wrong with the input (``strict=True`` raises on these)
@@ -63,7 +68,7 @@ DATA_FLAGS = (
 FAULT_FLAGS = DATA_FLAGS | Flag.MAG_DISTURBED
 
 #: flags that describe a normal state of the sensor or the method, not a fault
-STATE_FLAGS = Flag.REST | Flag.INITIALISING
+STATE_FLAGS = Flag.REST | Flag.INITIALISING | Flag.HEADING_CARRIED
 
 _FIXES = {
     Flag.INVALID: "remove or interpolate non-finite values",

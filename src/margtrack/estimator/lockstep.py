@@ -40,10 +40,20 @@ from __future__ import annotations
 
 import numpy as np
 
+from margtrack.estimator import restart_kernel as restart
 from margtrack.estimator import screen_kernel as screen
 from margtrack.estimator import skeleton as contract
 from margtrack.estimator.jit import njit, select
-from margtrack.estimator.skeleton import INITIALISING, K_Q, K_READY, K_SCREEN, K_STARTS
+from margtrack.estimator.skeleton import (
+    C_NED,
+    INITIALISING,
+    K_Q,
+    K_READY,
+    K_REF,
+    K_SCREEN,
+    K_STARTS,
+    K_WINDOW,
+)
 
 #: sensors per block: 4 AVX-512 vectors; a block's buffer (about 70 slots) stays in L1
 LANES = 32
@@ -114,13 +124,28 @@ def _scalar(start_at, step_at, hold_at, st, o, n_row, coef, scoef, dt, has_mag):
     i_f = o + (n_row + B_FLAGS) * lanes
     f = int(st[i_f])
     if st[o + (n_row + B_SCALAR) * lanes] == RESTART:
-        ok, qw, qx, qy, qz = contract.initial(scoef, a0, a1, a2, m0, m1, m2)
-        if not ok:
-            for k in range(4):
-                st[i_q + k * lanes] = st[o + (K_Q + k) * lanes]
-            hold_at(st, o, lanes, coef, st, i_x, lanes)
-            st[i_f] = f | INITIALISING
-            return
+        if not restart.pending(st, o, lanes, K_WINDOW):  # a start (not after a gap): this sample's
+            ok, qw, qx, qy, qz = contract.initial(scoef, a0, a1, a2, m0, m1, m2)
+            if not ok:
+                for k in range(4):
+                    st[i_q + k * lanes] = st[o + (K_Q + k) * lanes]
+                hold_at(st, o, lanes, coef, st, i_x, lanes)
+                st[i_f] = f | INITIALISING
+                return
+        else:  # a restart: from a window of samples (restart_kernel)
+            done = restart.add(st, o, lanes, K_WINDOW, K_REF, scoef, dt, f, g0, g1, g2, a0, a1,
+                               a2, m0, m1, m2)
+            held, qw, qx, qy, qz = restart.orientation(st, o, lanes, K_WINDOW, K_Q, K_REF,
+                                                       scoef, C_NED, has_mag, done)
+            if not done:
+                st[i_q], st[i_q + lanes], st[i_q + 2 * lanes], st[i_q + 3 * lanes] = (
+                    qw, qx, qy, qz)
+                hold_at(st, o, lanes, coef, st, i_x, lanes)
+                st[i_f] = f | INITIALISING
+                return
+            if held and has_mag:
+                f |= restart.HEADING_CARRIED
+            a0, a1, a2, m0, m1, m2 = restart.measured(st, o, lanes, K_WINDOW, held)
         start_at(st, o, lanes, coef, st[o + K_STARTS * lanes] == 0.0, qw, qx, qy, qz)
         st[o + K_STARTS * lanes] += 1.0
         st[o + K_READY * lanes] = 1.0
@@ -201,6 +226,7 @@ def block(start_at, step_at, hold_at, rare_at, n_row, n_x, st, rows, s0, scoef, 
         if tf & screen.GAP:
             for lane in range(n):
                 st[K_READY * lanes + lane] = 0.0
+                restart.clear(st, lane, lanes, K_WINDOW, st[K_STARTS * lanes + lane] > 0.0)
         for lane in range(n):  # vectorised across the lanes
             _screen_lane(rare_at, st, lane, n_row, coef, scoef, dt, k_ref, tf, has_mag,
                          has_gyr)

@@ -24,7 +24,15 @@ across them, with the same results, for a method that also provides its function
 strided form.
 
 Contract slots of a row: ``K_READY`` (1: started), ``K_STARTS`` (how many starts),
-``K_Q`` (4: the last output), ``K_SCREEN`` (the screening state, ``screen.N_SCREEN``).
+``K_Q`` (4: the last output; during a restart's window the last before the gap),
+``K_SCREEN`` (the screening state, ``screen.N_SCREEN``), ``K_WINDOW`` (a restart's window,
+``restart.N_WINDOW``).
+
+The first start (and any start not after a gap: a row set up by hand) is measured from
+the first usable sample (:func:`initial`); a restart after a gap or a clock reset that
+follows a start, from a short window of samples carried into one frame by the
+gyroscope (``estimator/restart_kernel.py``), the output meanwhile flagged
+``INITIALISING``.
 Screening coefficients ``scoef`` are ``screen``'s plus ``C_NED`` and ``C_MAG_REQUIRED``.
 """
 
@@ -35,6 +43,7 @@ import types
 
 import numpy as np
 
+from margtrack.estimator import restart_kernel as restart
 from margtrack.estimator import screen_kernel as screen
 from margtrack.estimator.jit import force_vector_width, njit, to_fixed_tuple
 from margtrack.estimator.triad_kernel import level, reference_triad, triad_unit, unit_pair
@@ -43,7 +52,9 @@ K_READY = 0
 K_STARTS = 1
 K_Q = 2
 K_SCREEN = 6
-N_CONTRACT = K_SCREEN + screen.N_SCREEN
+K_WINDOW = K_SCREEN + screen.N_SCREEN
+N_CONTRACT = K_WINDOW + restart.N_WINDOW
+K_REF = K_SCREEN + screen.S_REF  # the screening's field reference (norm, dip)
 
 # screening coefficients beyond screen.N_COEF
 C_NED = screen.N_COEF  # 1: the output frame is NED (else ENU)
@@ -90,13 +101,27 @@ def _sample(start, step, hold, row, coef, scoef, dt, k_ref, tflags, g0, g1, g2, 
     )
     if tflags & screen.GAP:
         row[K_READY] = 0.0
+        restart.clear(row, 0, 1, K_WINDOW, row[K_STARTS] > 0.0)
     if row[K_READY] == 0.0:
-        ok, qw, qx, qy, qz = initial(scoef, a0, a1, a2, m0, m1, m2)
-        if not ok:
-            for k in range(4):
-                q_out[k] = row[K_Q + k]
-            hold(row, coef, x_out)
-            return f | INITIALISING
+        if not restart.pending(row, 0, 1, K_WINDOW):  # a start (not after a gap): this sample's
+            ok, qw, qx, qy, qz = initial(scoef, a0, a1, a2, m0, m1, m2)
+            if not ok:
+                for k in range(4):
+                    q_out[k] = row[K_Q + k]
+                hold(row, coef, x_out)
+                return f | INITIALISING
+        else:  # a restart: from a window of samples (restart_kernel)
+            done = restart.add(row, 0, 1, K_WINDOW, K_REF, scoef, dt, f, g0, g1, g2, a0, a1, a2,
+                               m0, m1, m2)
+            held, qw, qx, qy, qz = restart.orientation(row, 0, 1, K_WINDOW, K_Q, K_REF, scoef,
+                                                       C_NED, has_mag, done)
+            if not done:
+                q_out[0], q_out[1], q_out[2], q_out[3] = qw, qx, qy, qz
+                hold(row, coef, x_out)
+                return f | INITIALISING
+            if held and has_mag:
+                f |= restart.HEADING_CARRIED
+            a0, a1, a2, m0, m1, m2 = restart.measured(row, 0, 1, K_WINDOW, held)
         start(row, coef, row[K_STARTS] == 0.0, qw, qx, qy, qz)
         row[K_STARTS] += 1.0
         row[K_READY] = 1.0
