@@ -141,9 +141,10 @@ def live_command(
         "estimated after a few seconds of motion, or --lever-arms). UDP/serial/OSC lines "
         "then carry no mag.")] = False,
     lever_arms: Annotated[Path | None, typer.Option(
-        "--lever-arms", help="With --no-mag: known lever arms, JSON {\"left_knee\": "
-        "{\"parent_m\": \\[x, y, z], \"child_m\": \\[x, y, z]}, ...} (m, joint centre to "
-        "sensor, sensor frames); joints left out are estimated.")] = None,
+        "--lever-arms", help="With --no-mag: known lever arms, a JSON object from joint "
+        "name (left_knee, ...) to an object with parent_m and child_m, each \\[x, y, z] "
+        "(m, joint centre to sensor, sensor frames; docs/live.md has an example); joints "
+        "left out are estimated.")] = None,
     time_unit: Annotated[str, typer.Option(
         "--time-unit", help="Unit of the UDP/serial lines' timestamps: s, ms, us or ns.")]
     = "s",
