@@ -144,7 +144,9 @@ class Smoother(RobustOffline):
                 use_mag = np.zeros(n, dtype=bool)
                 mag_s = np.zeros((n, 3))
             else:
-                mag_s = x.mag[s]
+                # a magnet carried by the sensor: robust's accepted hard-iron offset off
+                offset = fwd.outputs["mag_offset_ut"][s]
+                mag_s = x.mag[s] - np.where(np.isfinite(offset), offset, 0.0)
                 use_mag = ((flags & _NO_MAG) == 0) & np.all(np.isfinite(mag_s), axis=1)
             at_rest = (flags & int(Flag.REST)) != 0
             q_start = _start_orientations(
@@ -154,7 +156,8 @@ class Smoother(RobustOffline):
             store = _Store(n)
             kernel.forward(x.t, x.gyr[s], x.acc[s], mag_s, use_gyr, use_acc, use_mag, at_rest,
                            restart, q_start, b0, coefs, *store.forward_arrays())
-            kernel.backward(x.t, restart, *store.forward_arrays(), quat[s], bias[s], bias_var[s])
+            kernel.backward(x.t, restart, at_rest, coefs, *store.forward_arrays(), quat[s], bias[s],
+                            bias_var[s])
         self._state = forward._state
         self._last_flags = fwd.flags[:, -1].copy()
         self._flag_one = None
@@ -212,7 +215,7 @@ class _Store:
     def __init__(self, n: int) -> None:
         self.q_f, self.b_f = np.empty((n, 4)), np.empty((n, 3))
         self.q_p, self.b_p = np.empty((n, 4)), np.empty((n, 3))
-        self.p_f, self.p_p = np.empty((n, 6, 6)), np.empty((n, 6, 6))
+        self.p_f = np.empty((n, 6, 6))
 
     def forward_arrays(self) -> tuple[Array, ...]:
-        return self.q_f, self.b_f, self.q_p, self.b_p, self.p_f, self.p_p
+        return self.q_f, self.b_f, self.q_p, self.b_p, self.p_f

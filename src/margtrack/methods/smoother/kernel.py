@@ -179,9 +179,11 @@ def _solve_spd(p, m, out, low, y):
 
 @njit(cache=True)
 def forward(t, gyr, acc, mag, use_gyr, use_acc, use_mag, at_rest, restart, q_start, b0, coefs,
-            q_f, b_f, q_p, b_p, p_f, p_p):
+            q_f, b_f, q_p, b_p, p_f):
     """The filter over one sensor's (N,) samples; fills the filtered (``q_f``, ``b_f``,
-    ``p_f``) and predicted (``q_p``, ``b_p``, ``p_p``) states, (N, 4), (N, 3), (N, 6, 6)."""
+    ``p_f``) and predicted (``q_p``, ``b_p``) states, (N, 4), (N, 3), (N, 6, 6). The
+    predicted covariance is not kept: :func:`backward` recomputes it from ``p_f`` (the
+    same call on the same numbers, so the same bits), half the memory."""
     n = t.size
     q_angle, q_bias, q_rest = coefs[C_Q_ANGLE], coefs[C_Q_BIAS], coefs[C_Q_REST]
     r_acc, r_mag, r_rest = coefs[C_R_ACC], coefs[C_R_MAG], coefs[C_R_REST]
@@ -192,6 +194,7 @@ def forward(t, gyr, acc, mag, use_gyr, use_acc, use_mag, at_rest, restart, q_sta
     q = np.empty(4)
     b = b0.copy()
     p = np.zeros((6, 6))
+    p_prev = np.empty((6, 6))
     dx = np.zeros(6)
     w = np.zeros(3)
     scratch = np.empty((2, 3, 3))
@@ -211,8 +214,8 @@ def forward(t, gyr, acc, mag, use_gyr, use_acc, use_mag, at_rest, restart, q_sta
             if use_gyr[k]:
                 w[0], w[1], w[2] = gyr[k, 0], gyr[k, 1], gyr[k, 2]
             _rotation(q, r)
-            _predict_cov(p, r, dt, q_rest if at_rest[k] else q_angle, q_bias, p_p[k], scratch)
-            p[:, :] = p_p[k]
+            p_prev[:, :] = p
+            _predict_cov(p_prev, r, dt, q_rest if at_rest[k] else q_angle, q_bias, p, scratch)
             # q ← q ⊗ exp((ω - b) dt)
             wx, wy, wz = (w[0] - b[0]) * dt, (w[1] - b[1]) * dt, (w[2] - b[2]) * dt
             angle = math.sqrt(wx * wx + wy * wy + wz * wz)
@@ -223,8 +226,6 @@ def forward(t, gyr, acc, mag, use_gyr, use_acc, use_mag, at_rest, restart, q_sta
             q[0], q[1], q[2], q[3] = mul(q[0], q[1], q[2], q[3], c, s * wx, s * wy, s * wz)
         q_p[k] = q
         b_p[k] = b
-        if k == 0 or restart[k]:
-            p_p[k] = p
         _rotation(q, r)
         dx[:] = 0.0
         if use_acc[k]:
@@ -258,10 +259,13 @@ def forward(t, gyr, acc, mag, use_gyr, use_acc, use_mag, at_rest, restart, q_sta
 
 
 @njit(cache=True)
-def backward(t, restart, q_f, b_f, q_p, b_p, p_f, p_p, q_s, b_s, bias_var_s):
+def backward(t, restart, at_rest, coefs, q_f, b_f, q_p, b_p, p_f, q_s, b_s, bias_var_s):
     """The Rauch-Tung-Striebel pass over :func:`forward`'s states: the smoothed
     orientation ``q_s`` (N, 4), bias ``b_s`` (N, 3) and its variance (N, 3)."""
     n = t.size
+    q_angle, q_bias, q_rest = coefs[C_Q_ANGLE], coefs[C_Q_BIAS], coefs[C_Q_REST]
+    p_pred = np.empty((6, 6))
+    scratch = np.empty((2, 3, 3))
     r = np.empty((3, 3))
     m = np.empty((6, 6))
     gain = np.empty((6, 6))
@@ -286,6 +290,8 @@ def backward(t, restart, q_f, b_f, q_p, b_p, p_f, p_p, q_s, b_s, bias_var_s):
             continue
         dt = t[k + 1] - t[k]
         _rotation(q_f[k], r)
+        q_theta = q_rest if at_rest[k + 1] else q_angle
+        _predict_cov(p_f[k], r, dt, q_theta, q_bias, p_pred, scratch)
         # m = P_f(k) Fᵀ, F = [[I, -dt R], [0, I]]: Fᵀ = [[I, 0], [-dt Rᵀ, I]]
         for a in range(6):
             for c in range(3):
@@ -294,7 +300,7 @@ def backward(t, restart, q_f, b_f, q_p, b_p, p_f, p_p, q_s, b_s, bias_var_s):
                     v -= dt * p_f[k, a, 3 + j] * r[c, j]
                 m[a, c] = v
                 m[a, 3 + c] = p_f[k, a, 3 + c]
-        _solve_spd(p_p[k + 1], m, gain, low, y)
+        _solve_spd(p_pred, m, gain, low, y)
         # the smoothed error at k + 1 against its predicted nominal state
         _left_log(q_s[k + 1], q_p[k + 1], e)
         for a in range(3):
@@ -314,7 +320,7 @@ def backward(t, restart, q_f, b_f, q_p, b_p, p_f, p_p, q_s, b_s, bias_var_s):
         # P_s(k) = P_f(k) + C (P_s(k+1) - P_p(k+1)) Cᵀ
         for a in range(6):
             for c in range(6):
-                diff[a, c] = p_s[a, c] - p_p[k + 1, a, c]
+                diff[a, c] = p_s[a, c] - p_pred[a, c]
         for a in range(6):
             for c in range(6):
                 v = 0.0
