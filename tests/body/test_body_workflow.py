@@ -341,3 +341,18 @@ def test_xio_walk_reproduces_the_device_quaternion_knee_peaks(xio_folder: Path) 
             near = np.abs((t - t[0]) - s) <= 0.1
             assert abs(flex[near].max() - value) < 4.0, (side, s, value)
     assert result.calibration.spread_deg.max() < 2.0
+
+
+@pytest.mark.kernel
+def test_xio_walk_no_mag_online_range_of_motion_spans_the_walk(xio_folder: Path) -> None:
+    """Online --no-mag calibrates on the still end (every joint found only once it moved):
+    the range of motion runs from when every joint was found, not from that end."""
+    result = body.process_body(body.read_body(xio_folder), no_mag=True)
+    settled = result.t_rel_s[result.valid_from]
+    assert result.t_rel_s[result.window.start] > 10.0  # the pose at the end of the walk
+    assert result.range_from_s == pytest.approx(settled) and settled < 5.0
+    rom = {(j, c): hi - lo for j, c, lo, hi in result.range_of_motion()}
+    _, peaks = result.peaks("left_knee")
+    # the walk's knee flexion (swing peaks of 50-140 deg), not the still end's few degrees
+    assert rom[("left_knee", "flexion")] >= peaks.max() > 50.0
+    assert "range of motion from " + f"{settled:.2f} s" in "\n".join(result.summary())

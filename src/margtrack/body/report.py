@@ -3,7 +3,8 @@
 Calibration spread per sensor (largest angle of a pose-window sample from the sensor's
 mean, deg: how still the pose was held), the sensors' rates, magnetometers and flags, the
 joints ``--no-mag`` constrained with their lever arms (mm ± std), the
-range of motion of every joint angle after the calibration window, knee flexion peaks, the
+range of motion of every joint angle (after the calibration window, or with the online joint
+chain from when every joint was found), knee flexion peaks, the
 gait cycles per side (:func:`margtrack.body.gait.gait_summary_lines`), the root's path
 (start, end, drift and path length over the floor), and the notes (warnings) of
 :func:`margtrack.body.workflow.process_body`.
@@ -86,7 +87,7 @@ def summary_lines(result: BodyResult) -> list[str]:
         lines.append(f"{r.sensor:<18} {r.segment:<16} {r.rate_hz:7.1f} {spread:10.2f} "
                      f"{mag:>12}  {flags}")
     lines += constrained_lines(result)
-    lines.append("range of motion after the calibration (deg):")
+    lines.append(f"range of motion from {result.range_from_s:.2f} s (deg):")
     lines.append(f"{'joint':<16} {'component':<18} {'min':>7} {'max':>7} {'range':>7}")
     for joint, comp, lo, hi in result.range_of_motion():
         lines.append(f"{joint:<16} {comp:<18} {lo:7.1f} {hi:7.1f} {hi - lo:7.1f}")

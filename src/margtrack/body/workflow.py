@@ -109,6 +109,10 @@ class BodyResult:
         then stays at ``skeleton.root_position_m``).
     constrained : with ``no_mag``, the joints that tied each segment to its parent, with
         their lever arms (:class:`~margtrack.body.chain.ConstrainedJoint`); else empty.
+    valid_from : the first frame whose angles count in :meth:`range_of_motion`: the end
+        of the calibration window, or with the online joint chain (``no_mag`` without
+        ``offline``, calibrated on a pose after every joint moved) the frame from which
+        every joint's relative heading was found. None: the end of the calibration.
     """
 
     skeleton: Skeleton
@@ -128,6 +132,7 @@ class BodyResult:
     gait: Mapping[str, SideGait]
     root: RootPath | None
     constrained: tuple[ConstrainedJoint, ...] = ()
+    valid_from: int | None = None
 
     @property
     def t_rel_s(self) -> Array:
@@ -140,8 +145,9 @@ class BodyResult:
         return float(1.0 / np.median(np.diff(self.t_s)))
 
     def range_of_motion(self) -> list[tuple[str, str, float, float]]:
-        """``(joint, component, min_deg, max_deg)`` over the frames after the calibration."""
-        after = slice(self.window.stop, None) if self.window.stop < self.t_s.size else slice(None)
+        """``(joint, component, min_deg, max_deg)`` over the frames from
+        :attr:`range_from_s` on."""
+        after = slice(self._range_start(), None)
         rows = []
         for j, (joint, comps) in enumerate(zip(self.angles.names, self.angles.components,
                                                strict=True)):
@@ -149,6 +155,15 @@ class BodyResult:
             rows += [(joint, c, float(deg[:, k].min()), float(deg[:, k].max()))
                      for k, c in enumerate(comps)]
         return rows
+
+    def _range_start(self) -> int:
+        start = self.window.stop if self.valid_from is None else self.valid_from
+        return start if start < self.t_s.size else 0
+
+    @property
+    def range_from_s(self) -> float:
+        """Where :meth:`range_of_motion` starts, s from the first frame."""
+        return float(self.t_rel_s[self._range_start()])
 
     def peaks(self, joint: str, component: int = 0, height_deg: float = 20.0,
               min_separation_s: float = 0.5) -> tuple[Array, Array]:
@@ -354,7 +369,9 @@ def process_body(
             body_map.forward_axis if body_map is not None else None)
         axis = parse_axis(given if given is not None else DEFAULT_FORWARD_AXIS)
     t_rel = t - t[0]
+    valid_from = None
     if no_mag and not offline:
+        valid_from = int(np.searchsorted(t_rel, chain.settled_s - t[0]))
         window = _settled_pose_window(t_rel, q, pose_window, still_s, max_motion_deg,
                                       chain.settled_s - t[0])
         notes.append(f"online joint estimate (--no-mag without --offline): calibrated on a "
@@ -387,7 +404,7 @@ def process_body(
                      "foot sensor on each leg")
     result = BodyResult(skeleton, cal, t, q, pose, angles, window, tuple(reports),
                         np.stack(flag_cols, axis=1), method_name, dict(used_params), axis,
-                        tuple(notes), gyr, gait, root, constrained)
+                        tuple(notes), gyr, gait, root, constrained, valid_from)
     return replace(result, notes=result.notes + tuple(_sanity_notes(result)))
 
 
