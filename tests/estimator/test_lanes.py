@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from margtrack import io, methods, sim
-from margtrack.estimator import compiled, jit, sensor_threads
+from margtrack.estimator import compiled, jit, restart_kernel, sensor_threads
 from margtrack.estimator import lockstep as contract_lanes
 from margtrack.estimator import screen_kernel as screen
 from margtrack.estimator.flags import Flag
@@ -206,8 +206,9 @@ def _null_block(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out,
                 flags_out, frame_major, s_in):
     scoef = jit.to_fixed_tuple(coefs, N_SCOEF)
     contract_lanes.block(_null_start_at, _null_step_at, _null_hold_at, _null_rare_at,
-                         N_CONTRACT, 0, st, rows, s0, scoef, scoef, dts, ks, tflags, gyr, acc,
-                         mag, has, q_out, x_out, flags_out, frame_major, s_in)
+                         restart_kernel.no_own_field, N_CONTRACT, 0, st, rows, s0, scoef,
+                         scoef, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out,
+                         frame_major, s_in)
 
 
 @pytest.mark.kernel

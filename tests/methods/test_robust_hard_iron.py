@@ -206,3 +206,57 @@ def test_a_sample_without_a_usable_field_only_ages_the_sums():
     np.testing.assert_allclose(f.state.get("hard_iron_sums")[0], decay * before, rtol=1e-15)
     f.update(rec.gyr[-1], rec.acc[-1], np.full(3, np.nan), dt=dt)
     np.testing.assert_allclose(f.state.get("hard_iron_sums")[0], decay**2 * before, rtol=1e-14)
+
+
+# -- a restart after a gap (estimator/restart_kernel.py) sees the field as robust does -----
+def _cut(rec, t0_s, t1_s):
+    """``rec`` without its samples in [t0_s, t1_s): a gap robust restarts after."""
+    from dataclasses import replace
+
+    keep = (rec.t < t0_s) | (rec.t >= t1_s)
+    return replace(rec, t=rec.t[keep], gyr=rec.gyr[keep], acc=rec.acc[keep],
+                   mag=rec.mag[keep], quat_true=rec.quat_true[keep],
+                   movement=None if rec.movement is None else rec.movement[keep])
+
+
+def _restart_sample(est):
+    i_gap = int(np.flatnonzero(est.flags & Flag.GAP)[0])
+    return i_gap, i_gap + int(np.argmin((est.flags[i_gap:] & Flag.INITIALISING) != 0))
+
+
+def test_a_restart_takes_the_accepted_offset_off_the_windows_field():
+    """A magnet carried at 4 cm (313 µT, six earth fields), its offset accepted before a
+    2 s gap in random motion: the restart's window measures the heading from the field less
+    the offset (the raw field's heading, one sample's TRIAD, is tens of degrees off; a
+    carried one is off by the gap's turn)."""
+    rec = _recording(4.0, seed=2, duration_s=40.0)
+    cut = _cut(rec, 30.0, 32.0)
+    est = Robust(frame="ENU").run(cut)
+    i_gap, i_start = _restart_sample(est)
+    true = sim.attached_dipole(0.04, 0.1).offset_ut
+    np.testing.assert_allclose(est.outputs["mag_offset_ut"][i_gap - 1], true, atol=0.05 * 313)
+    err = error_series(est.quat, cut.quat_true, est.frame, cut.frame)
+    assert math.degrees(err.heading_rad[i_start]) < 5.0
+    assert not est.flags[i_start] & Flag.HEADING_CARRIED
+    # the oracles: the raw field's heading and the heading carried across the gap
+    from margtrack.estimator.initial import initial_orientation
+
+    raw = initial_orientation(cut.acc[i_gap:i_gap + 1], cut.mag[i_gap:i_gap + 1], "ENU")
+    raw_err = error_series(raw, cut.quat_true[i_gap:i_gap + 1], "ENU", cut.frame)
+    assert math.degrees(raw_err.heading_rad[0]) > 20.0
+    turned = error_series(cut.quat_true[i_gap - 1:i_gap], cut.quat_true[i_start:i_start + 1],
+                          "ENU", cut.frame)
+    assert math.degrees(turned.heading_rad[0]) > 20.0
+
+
+def test_a_restart_while_a_carried_magnet_is_rejected_carries_the_heading():
+    """A turn about the vertical with a magnet on the body: no fit is accepted (a circle)
+    and the field, whose norm moves with the turn, is rejected; after a gap the window
+    takes no heading from that field: carried, flagged HEADING_CARRIED."""
+    q0 = quat.from_rotvec(np.radians([10.0, 0.0, 0.0]))
+    traj = sim.constant_rotation((0.0, 0.0, 1.0), 30.0, 40.0, RATE_HZ, q0=q0)
+    cut = _cut(_recording(10.0, trajectory=traj), 25.0, 27.0)
+    est = Robust(frame="ENU").run(cut)
+    i_gap, i_start = _restart_sample(est)
+    assert est.flags[i_gap - 1] & Flag.MAG_DISTURBED
+    assert est.flags[i_start] & Flag.HEADING_CARRIED

@@ -111,7 +111,8 @@ def _step_lane(step_at, st, o, n_row, coef, dt, has_mag):
 
 
 @njit(cache=True, inline="always")
-def _scalar(start_at, step_at, hold_at, st, o, n_row, coef, scoef, dt, has_mag):
+def _scalar(start_at, step_at, hold_at, window_field_at, st, o, n_row, coef, scoef, dt,
+            has_mag):
     """The rest of a lane's sample in the scalar pass (``contract._sample``): its (re)start
     if it has one, and its step (the same results as :func:`_step_lane`'s, rare branches
     included)."""
@@ -133,10 +134,13 @@ def _scalar(start_at, step_at, hold_at, st, o, n_row, coef, scoef, dt, has_mag):
                 st[i_f] = f | INITIALISING
                 return
         else:  # a restart: from a window of samples (restart_kernel)
-            done = restart.add(st, o, lanes, K_WINDOW, K_REF, scoef, dt, f, g0, g1, g2, a0, a1,
-                               a2, m0, m1, m2)
+            o0, o1, o2, own_n, own_d = window_field_at(st, o, lanes)
+            w0, w1, w2 = restart.off(m0, m1, m2, o0, o1, o2)
+            done = restart.add(st, o, lanes, K_WINDOW, K_REF, scoef, own_n, own_d, dt, f, g0,
+                               g1, g2, a0, a1, a2, w0, w1, w2)
             held, qw, qx, qy, qz = restart.orientation(st, o, lanes, K_WINDOW, K_Q, K_REF,
-                                                       scoef, C_NED, has_mag, done)
+                                                       scoef, own_n, own_d, C_NED, has_mag,
+                                                       done)
             if not done:
                 st[i_q], st[i_q + lanes], st[i_q + 2 * lanes], st[i_q + 3 * lanes] = (
                     qw, qx, qy, qz)
@@ -146,6 +150,7 @@ def _scalar(start_at, step_at, hold_at, st, o, n_row, coef, scoef, dt, has_mag):
             if held and has_mag:
                 f |= restart.HEADING_CARRIED
             a0, a1, a2, m0, m1, m2 = restart.measured(st, o, lanes, K_WINDOW, held)
+            m0, m1, m2 = restart.on(m0, m1, m2, o0, o1, o2)
         start_at(st, o, lanes, coef, st[o + K_STARTS * lanes] == 0.0, qw, qx, qy, qz)
         st[o + K_STARTS * lanes] += 1.0
         st[o + K_READY * lanes] = 1.0
@@ -185,8 +190,9 @@ def _rows_out(rows, s0, n, n_row, st):
 
 
 @njit(cache=True, inline="always")
-def block(start_at, step_at, hold_at, rare_at, n_row, n_x, st, rows, s0, scoef, coef, dts, ks,
-          tflags, gyr, acc, mag, has, q_out, x_out, flags_out, frame_major, s_in):
+def block(start_at, step_at, hold_at, rare_at, window_field_at, n_row, n_x, st, rows, s0,
+          scoef, coef, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out,
+          frame_major, s_in):
     """Sensors s0 .. s0 + LANES (fewer at the end) through all samples, in lockstep.
 
     The inputs gyr, acc, mag are (S, N, 3) (``s_in`` 0), or with ``frame_major`` (N, S', 3)
@@ -238,7 +244,8 @@ def block(start_at, step_at, hold_at, rare_at, n_row, n_x, st, rows, s0, scoef, 
                 _step_lane(step_at, st, lane, n_row, coef, dt, has_mag)
         else:  # a lane (re)starts or takes a rare branch: the block's sample in scalar code
             for lane in range(n):
-                _scalar(start_at, step_at, hold_at, st, lane, n_row, coef, scoef, dt, has_mag)
+                _scalar(start_at, step_at, hold_at, window_field_at, st, lane, n_row, coef, scoef,
+                        dt, has_mag)
         for lane in range(n):
             su, lu = np.uint64(s0 + lane), np.uint64(lane)
             flags_out[su, iu] = int(st[np.uint64(i_f) + lu])

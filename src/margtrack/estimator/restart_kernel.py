@@ -27,6 +27,13 @@ samples and measures the orientation at its last sample:
   is flagged ``HEADING_CARRIED`` (when a magnetometer is given: a 6-D method's heading is
   always carried, not flagged). Whether the field was disturbed before the gap does not
   matter: only the field after it is judged.
+- a method that takes a hard-iron offset off its field (``robust``) gives the window its
+  view of the field (``_window_field_at(st, o, lanes)`` in its kernel: the offset, and its
+  reference norm and dip for the corrected field; a norm < 0 when it rejects the field, a
+  magnet turning with the sensor and not yet fitted): the window's field samples have the
+  offset taken off and are judged by that reference, so a carried magnet's field neither
+  passes for the earth's nor hides it. :func:`measured`'s field is the window's mean as
+  the method reads it (offset back on). Without it (:func:`no_own_field`) the screening's.
 
 During the window (flagged ``INITIALISING``) the output is the window's orientation so far
 (at its first sample what a one-sample start gives, then better as samples add up); the
@@ -88,6 +95,30 @@ HEADING_CARRIED = 512  # margtrack.estimator.flags.Flag.HEADING_CARRIED
 
 
 @njit(cache=True, inline="always")
+def no_own_field(st, o, lanes):
+    """A method's view of the field for a restart's window, for a method without one: no
+    offset to take off, the screening's reference (``window_field_at`` below)."""
+    return 0.0, 0.0, 0.0, 0.0, math.nan
+
+
+@njit(cache=True, inline="always")
+def off(m0, m1, m2, o0, o1, o2):
+    """A field sample with a method's offset taken off (a zero vector, no sample, stays)."""
+    if m0 == 0.0 and m1 == 0.0 and m2 == 0.0:
+        return m0, m1, m2
+    return m0 - o0, m1 - o1, m2 - o2
+
+
+@njit(cache=True, inline="always")
+def on(m0, m1, m2, o0, o1, o2):
+    """:func:`measured`'s mean field with the offset back on, as the method reads a field
+    (a zero vector, none, stays)."""
+    if m0 == 0.0 and m1 == 0.0 and m2 == 0.0:
+        return m0, m1, m2
+    return m0 + o0, m1 + o1, m2 + o2
+
+
+@njit(cache=True, inline="always")
 def clear(st, o, lanes, k, started):
     """An empty window (at a gap). The next start is a restart from the window if the
     sensor had ``started`` (else it is the first, from a sample)."""
@@ -104,11 +135,12 @@ def pending(st, o, lanes, k):
 
 
 @njit(cache=True, inline="always")
-def add(st, o, lanes, k, k_ref, scoef, dt, f, g0, g1, g2, a0, a1, a2, m0, m1, m2):
+def add(st, o, lanes, k, k_ref, scoef, own_n, own_d, dt, f, g0, g1, g2, a0, a1, a2, m0, m1,
+        m2):
     """One screened sample (rad/s, m/s², field; zero vectors: none) into the window;
-    returns whether the window is complete. ``k_ref``: the screening's field reference
-    (a field sample whose norm is off its norm by more than :func:`reference`'s tolerance
-    does not agree with it)."""
+    returns whether the window is complete. ``k_ref``: the screening's field reference,
+    ``own_n``, ``own_d``: the method's (:func:`reference`; a field sample whose norm is off
+    the reference's by more than its tolerance does not agree with it)."""
     i = o + k * lanes
     rw, rx = st[i + W_R * lanes], st[i + (W_R + 1) * lanes]
     ry, rz = st[i + (W_R + 2) * lanes], st[i + (W_R + 3) * lanes]
@@ -134,8 +166,8 @@ def add(st, o, lanes, k, k_ref, scoef, dt, f, g0, g1, g2, a0, a1, a2, m0, m1, m2
             st[i + W_N_ACC * lanes] += 1.0
     nm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
     if nm > 0.0:
-        ref_n, _, tol_n, _ = reference(st, o, lanes, k_ref, scoef)
-        if ref_n > 0.0 and abs(nm - ref_n) > tol_n * ref_n:
+        ref_n, _, tol_n, _ = reference(st, o, lanes, k_ref, scoef, own_n, own_d)
+        if own_n < 0.0 or (ref_n > 0.0 and abs(nm - ref_n) > tol_n * ref_n):
             st[i + W_N_OFF * lanes] += 1.0
         else:
             bx, by, bz = rotate(rw, rx, ry, rz, m0, m1, m2)
@@ -150,10 +182,13 @@ def add(st, o, lanes, k, k_ref, scoef, dt, f, g0, g1, g2, a0, a1, a2, m0, m1, m2
 
 
 @njit(cache=True, inline="always")
-def reference(st, o, lanes, k_ref, scoef):
-    """The screening's field reference learned before the gap and how far a field may be
-    from it and still agree: (norm, dip rad (nan: unknown), relative norm tolerance, dip
-    tolerance rad).
+def reference(st, o, lanes, k_ref, scoef, own_n, own_d):
+    """The field reference learned before the gap and how far a field may be from it and
+    still agree: (norm, dip rad (nan: unknown), relative norm tolerance, dip tolerance rad).
+
+    The screening's reference (``k_ref``), unless the method gives its own (``own_n`` > 0,
+    ``own_d``: a method that takes a hard-iron offset off its field keeps its reference
+    for the corrected field; ``own_n`` < 0: the method rejects the field, none agrees).
 
     The tolerances are the method's own (``mag_norm_tol``, ``mag_dip_tol_deg``) but never
     tighter than the shared screening's defaults (:data:`NORM_TOL`, :data:`DIP_TOL_DEG`):
@@ -162,6 +197,8 @@ def reference(st, o, lanes, k_ref, scoef):
     heading the sensor may have turned away from by anything during the gap."""
     ref_n = st[o + (k_ref + screen.R_NORM) * lanes]
     ref_d = st[o + (k_ref + screen.R_DIP) * lanes]
+    if own_n > 0.0:
+        ref_n, ref_d = own_n, own_d
     tol_n = max(scoef[screen.C_NORM_TOL], NORM_TOL)
     tol_d = max(scoef[screen.C_DIP_TOL], DIP_TOL_DEG * (math.pi / 180.0))
     return ref_n, ref_d, tol_n, tol_d
@@ -176,11 +213,12 @@ def quiet(st, o, lanes, k):
 
 
 @njit(cache=True, inline="always")
-def orientation(st, o, lanes, k, k_q, k_ref, scoef, c_ned, has_mag, done):
+def orientation(st, o, lanes, k, k_q, k_ref, scoef, own_n, own_d, c_ned, has_mag, done):
     """The window's orientation at its last sample: (heading carried, w, x, y, z).
 
     ``k_q``: the slots of the last orientation before the gap; ``k_ref``: the screening's
-    field reference (norm, dip); ``scoef[c_ned]`` 1 for NED; ``done``: the window is
+    field reference (norm, dip), ``own_n``, ``own_d`` the method's (:func:`reference`);
+    ``scoef[c_ned]`` 1 for NED; ``done``: the window is
     complete (before, the mean acceleration may still be tens of degrees off in fast
     motion, so the mean field's dip is not judged by it)."""
     i = o + k * lanes
@@ -195,7 +233,7 @@ def orientation(st, o, lanes, k, k_q, k_ref, scoef, c_ned, has_mag, done):
                                              st[i + (W_MAG + 1) * lanes],
                                              st[i + (W_MAG + 2) * lanes])
     if clean and flag == 0:
-        _, ref_d, _, tol_d = reference(st, o, lanes, k_ref, scoef)
+        _, ref_d, _, tol_d = reference(st, o, lanes, k_ref, scoef, own_n, own_d)
         dip = _fastmath.asin(min(1.0, max(-1.0, -(ax * mx + ay * my + az * mz))))
         if done and not math.isnan(ref_d) and abs(dip - ref_d) > tol_d:
             clean = False

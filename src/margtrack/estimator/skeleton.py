@@ -90,8 +90,8 @@ def initial(scoef, a0, a1, a2, m0, m1, m2):
 
 
 @njit(cache=True, inline="always")
-def _sample(start, step, hold, row, coef, scoef, dt, k_ref, tflags, g0, g1, g2, a0, a1, a2,
-            m0, m1, m2, has_mag, has_gyr, q_out, x_out):
+def _sample(start, step, hold, window_field, row, coef, scoef, dt, k_ref, tflags, g0, g1, g2,
+            a0, a1, a2, m0, m1, m2, has_mag, has_gyr, q_out, x_out):
     """One sensor, one sample: screen, (re)start when due, step or hold; returns flags.
 
     ``k_ref`` is ``screen.ref_gain(dt)``, shared by the sensors of a sample."""
@@ -111,10 +111,12 @@ def _sample(start, step, hold, row, coef, scoef, dt, k_ref, tflags, g0, g1, g2, 
                 hold(row, coef, x_out)
                 return f | INITIALISING
         else:  # a restart: from a window of samples (restart_kernel)
-            done = restart.add(row, 0, 1, K_WINDOW, K_REF, scoef, dt, f, g0, g1, g2, a0, a1, a2,
-                               m0, m1, m2)
+            o0, o1, o2, own_n, own_d = window_field(row, 0, 1)
+            w0, w1, w2 = restart.off(m0, m1, m2, o0, o1, o2)
+            done = restart.add(row, 0, 1, K_WINDOW, K_REF, scoef, own_n, own_d, dt, f, g0, g1,
+                               g2, a0, a1, a2, w0, w1, w2)
             held, qw, qx, qy, qz = restart.orientation(row, 0, 1, K_WINDOW, K_Q, K_REF, scoef,
-                                                       C_NED, has_mag, done)
+                                                       own_n, own_d, C_NED, has_mag, done)
             if not done:
                 q_out[0], q_out[1], q_out[2], q_out[3] = qw, qx, qy, qz
                 hold(row, coef, x_out)
@@ -122,6 +124,7 @@ def _sample(start, step, hold, row, coef, scoef, dt, k_ref, tflags, g0, g1, g2, 
             if held and has_mag:
                 f |= restart.HEADING_CARRIED
             a0, a1, a2, m0, m1, m2 = restart.measured(row, 0, 1, K_WINDOW, held)
+            m0, m1, m2 = restart.on(m0, m1, m2, o0, o1, o2)
         start(row, coef, row[K_STARTS] == 0.0, qw, qx, qy, qz)
         row[K_STARTS] += 1.0
         row[K_READY] = 1.0
@@ -160,7 +163,7 @@ def clock_series(clock, max_gap, t):
 
 
 @njit(cache=True, inline="always")
-def series(start, step, hold, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
+def series(start, step, hold, window_field, rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out,
            flags_out):
     """S sensors' N samples with common timestamps ``t`` (N,) s on the shared ``clock``
     (1,) in/out.
@@ -195,7 +198,7 @@ def series(start, step, hold, rows, clock, coefs, t, gyr, acc, mag, has, q_out, 
                 dt_a, k_a = dt, screen.ref_gain(dt)
                 k_ref = k_a
             flags_out[s, i] = _sample(
-                start, step, hold, row, coef, scoef, dt, k_ref, tflags,
+                start, step, hold, window_field, row, coef, scoef, dt, k_ref, tflags,
                 gyr_s[i, 0], gyr_s[i, 1], gyr_s[i, 2], acc_s[i, 0], acc_s[i, 1], acc_s[i, 2],
                 mag_s[i, 0], mag_s[i, 1], mag_s[i, 2], has_mag, has_gyr, q_s[i], x_s[i],
             )
@@ -223,8 +226,8 @@ def _run_template(rows, clock, coefs, t, gyr, acc, mag, has, q_out, x_out, flags
     """S sensors' N samples at times t (N,) s: rows (S, N_ROW) and clock (1,) in/out, gyr,
     acc, mag (S, N, 3), q_out (S, N, 4), x_out (S, N, N_X), flags_out (S, N) filled
     (:func:`series`)."""
-    series(_start, _step, _hold, rows, clock, coefs, t, gyr, acc, mag,  # noqa: F821
-           has, q_out, x_out, flags_out)
+    series(_start, _step, _hold, _window_field_at, rows, clock, coefs, t, gyr,  # noqa: F821
+           acc, mag, has, q_out, x_out, flags_out)
 
 
 def _lanes_template(st, rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
@@ -238,7 +241,8 @@ def _lanes_template(st, rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out,
     coef = to_fixed_tuple(coefs[N_SCOEF:], N_COEF)  # noqa: F821
     for s0 in range(0, rows.shape[0], contract_lanes.LANES):  # noqa: F821
         contract_lanes.block(  # noqa: F821
-            _start_at, _step_at, _hold_at, _rare_at, N_ROW, N_X,  # noqa: F821
+            _start_at, _step_at, _hold_at, _rare_at, _window_field_at, N_ROW,  # noqa: F821
+            N_X,  # noqa: F821
             st, rows, s0, scoef, coef, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
             flags_out, frame_major, s_in)
 
@@ -273,7 +277,8 @@ def entry_points(module_name):
 
     The module provides ``_start``, ``_step``, ``_hold`` over one row (this module's
     docstring; ``_start_given`` too if a start at an orientation given whole,
-    ``reset(q0)``, differs from one measured), ``N_ROW`` and ``N_X`` (values per sample
+    ``reset(q0)``, differs from one measured; ``_window_field_at`` if it takes a hard-iron
+    offset off the field: ``estimator/restart_kernel.py``), ``N_ROW`` and ``N_X`` (values per sample
     ``run`` writes); ``lanes`` (None otherwise) when it also provides them strided
     (``_start_at``, ``_step_at``, ``_hold_at``, ``_rare_at``: ``estimator/lockstep.py``) and
     ``N_COEF``. ``lanes`` runs on a clock already read (:func:`clock_series`); both release
@@ -286,14 +291,18 @@ def entry_points(module_name):
     import sys
 
     module = sys.modules[module_name]
-    run = _generated(_run_template, "run", module, {"nogil": True, "_nrt": False})
+    # a method's view of the field for a restart's window (restart_kernel), if it has one
+    window_field = getattr(module, "_window_field_at", restart.no_own_field)
+    run = _generated(_run_template, "run", module, {"nogil": True, "_nrt": False},
+                     _window_field_at=window_field)
     # a start at an orientation given whole (``reset(q0)``) may differ from one measured
     start = _generated(_start_template, "start", module, {},
                        _start_given=getattr(module, "_start_given", module._start))
     lanes = None
     if hasattr(module, "_step_at"):
         lanes = _generated(_lanes_template, "lanes", module,
-                           {"nogil": True, "_nrt": False, "error_model": "numpy"})
+                           {"nogil": True, "_nrt": False, "error_model": "numpy"},
+                           _window_field_at=window_field)
         width = getattr(module, "LANES_VECTOR_WIDTH", None)
         if width:
             lanes = force_vector_width(lanes, width)

@@ -69,6 +69,23 @@ def _sensor_at(st, o, lanes, coef):
     hard_iron.fresh_at(st, o, lanes)
 
 
+@njit(cache=True, inline="always")
+def _window_field_at(st, o, lanes):
+    """The field as robust reads it, for a restart's window (``estimator/restart_kernel.py``):
+    (offset (3), reference norm, dip rad). With a hard-iron offset accepted, the offset
+    and robust's reference for the corrected field; while a field turning with the sensor
+    is rejected with none accepted (``R_HI_MOVING``: a carried magnet, still there after a
+    gap), norm -1: no field sample agrees and the heading is carried; else no offset and
+    the screening's reference (norm 0)."""
+    i_off = o + R_HI_OFFSET * lanes
+    o0, o1, o2 = st[i_off], st[i_off + lanes], st[i_off + 2 * lanes]
+    if st[o + R_HI_MOVING * lanes] != 0.0:
+        return 0.0, 0.0, 0.0, -1.0, math.nan
+    if (o0 != 0.0 or o1 != 0.0 or o2 != 0.0) and st[o + R_MAG_NORM_REF * lanes] > 0.0:
+        return o0, o1, o2, st[o + R_MAG_NORM_REF * lanes], st[o + R_MAG_DIP_REF * lanes]
+    return 0.0, 0.0, 0.0, 0.0, math.nan
+
+
 @njit(cache=True)
 def fresh(rows, coefs):
     """Rows (S, N_ROW) of sensors that have seen nothing: the sensor part (``_sensor_at``)."""
