@@ -134,12 +134,14 @@ def live_command(
     = None,
     sensors: Annotated[str | None, typer.Option(
         help="UDP/serial sensors: a count or comma-separated names.")] = None,
-    no_mag: Annotated[bool, typer.Option(
-        "--no-mag", help="No magnetometer: every filter runs without it and, with a body "
-        "model, every segment but the pelvis is its parent's orientation times the relative "
-        "orientation across the joint (gyroscopes and accelerometers of both; lever arms "
-        "estimated after a few seconds of motion, or --lever-arms). UDP/serial/OSC lines "
-        "then carry no mag.")] = False,
+    no_mag: Annotated[bool | None, typer.Option(
+        "--no-mag/--mag", show_default=False, help="No magnetometer: every filter runs "
+        "without it and, with a body model, every segment but the pelvis is its parent's "
+        "orientation times the relative orientation across the joint (gyroscopes and "
+        "accelerometers of both; lever arms estimated after a few seconds of motion, or "
+        "--lever-arms). UDP/serial/OSC lines then carry no mag. Default --mag, except when "
+        "replaying a --record file: the session's choice and lever arms (either flag "
+        "overrides it).")] = None,
     lever_arms: Annotated[Path | None, typer.Option(
         "--lever-arms", help="With --no-mag: known lever arms, a JSON object from joint "
         "name (left_knee, ...) to an object with parent_m and child_m, each \\[x, y, z] "
@@ -212,6 +214,8 @@ def live_command(
 ) -> None:
     """Track sensors live and show the avatar in a browser page (000's prototype system)."""
     console = Console()
+    no_mag_given = no_mag is not None
+    no_mag = bool(no_mag)
     if heading is None:
         heading = "north" if demo and not no_mag else "pelvis"
     if heading not in ("north", "pelvis"):
@@ -229,6 +233,9 @@ def live_command(
                      no_mag, osc, lsl,
                      udp_host=_udp_host(udp_host, udp is not None or osc is not None),
                      time_unit=time_unit)
+    replayed = source if getattr(source, "recording", None) is not None else None
+    if replayed is not None and not no_mag_given:  # a raw live recording: as it ran
+        no_mag = bool(getattr(replayed, "no_mag", False))
     if demo and no_mag and forward_axis is None and heading == "pelvis":
         # the simulated sensors are mounted at random: the pelvis sensor's forward axis
         # comes from the simulation (person 0's mounting)
@@ -252,11 +259,13 @@ def live_command(
         from margtrack.live.joint_chain import read_chain_lever_arms
 
         arms = read_chain_lever_arms(lever_arms)
-    recorded = getattr(source, "recording", None)  # a raw live recording replayed
+    recorded = getattr(replayed, "recording", None)  # a raw live recording replayed
     if recorded is not None and method == "default" and not param:
         method, params, calibrate = recorded.method, dict(recorded.params), False
         console.print(f"replaying {recorded.n_frames} frames with the session's method "
                       f"{method} and its parameters and calibrations")
+    if recorded is not None:
+        arms = _replayed_session(replayed, no_mag, no_mag_given, arms, console)
     if headless:
         _headless(source, method, params, calibrate, heading, axis, duration, console,
                   record, force, summary=summary, stale_after_s=stale_after_s,
@@ -286,6 +295,29 @@ def live_command(
     console.print(session.engine.stats().summary())
     if summary is not None:
         session.engine.write_summary(str(summary))
+
+
+def _replayed_session(source: Any, no_mag: bool, no_mag_given: bool, arms: Any,
+                      console: Console) -> Any:
+    """The lever arms for replaying a raw live recording (the session's unless
+    --lever-arms gives some); prints which magnetometer choice and lever arms are used."""
+    session = source
+    ran = {None: "an unrecorded magnetometer choice (--mag assumed)", True: "--no-mag",
+           False: "--mag"}[session.no_mag]
+    used = "--no-mag" if no_mag else "--mag"
+    console.print(f"the session ran with {ran}; replaying with {used} "
+                  + ("(from the command line)" if no_mag_given else "(the session's)"))
+    if not no_mag:
+        return arms
+    if arms is not None:
+        console.print(f"lever arms: --lever-arms ({len(arms)} joint(s)), the others estimated")
+        return arms
+    if session.lever_arms:
+        console.print("lever arms: the session's for " + ", ".join(session.lever_arms)
+                      + "; the others estimated from the replayed motion as in the session")
+    else:
+        console.print("lever arms: estimated from the replayed motion, as in the session")
+    return dict(session.lever_arms)
 
 
 def _calibrated(source: Source, specs: list[str]) -> Source:

@@ -251,6 +251,12 @@ class Engine:
         return [] if self._chain is None else self._chain.describe()
 
     @property
+    def lever_arms_in_force(self) -> dict[str, Any]:
+        """With ``no_mag`` and a body model, joint name -> the lever arms in force
+        (:meth:`~margtrack.live.joint_chain.JointChain.lever_arms_in_force`); else empty."""
+        return {} if self._chain is None else self._chain.lever_arms_in_force()
+
+    @property
     def calibration_window_s(self) -> tuple[float, float] | None:
         """(first, last) time of the frames of the last successful calibration, s."""
         return self._body.window_s
