@@ -184,6 +184,10 @@ def live_command(
     duration: Annotated[float | None, typer.Option(
         "--duration", help="Stop after this many seconds.")] = None,
     out: Annotated[Path | None, typer.Option(help="Folder for recordings' exports.")] = None,
+    bvh_unit: Annotated[str, typer.Option(
+        "--bvh-unit", help="Length unit of the page's BVH exports: cm (the default; "
+        "Blender's BVH import scale 0.01) or m (scale 1), as margtrack body --bvh-unit.")]
+    = "cm",
     headless: Annotated[bool, typer.Option(
         "--headless", help="No page: run the engine and print its statistics.")] = False,
     record: Annotated[Path | None, typer.Option(
@@ -218,6 +222,10 @@ def live_command(
     no_mag = bool(no_mag)
     if heading is None:
         heading = "north" if demo and not no_mag else "pelvis"
+    from margtrack.body.export_bvh import BVH_UNITS
+
+    if bvh_unit not in BVH_UNITS:
+        raise ValueError(f"--bvh-unit must be cm or m, got {bvh_unit!r}")
     if heading not in ("north", "pelvis"):
         raise ValueError(f"--heading must be north or pelvis, got {heading!r}")
     if heading == "north" and forward_axis is not None:
@@ -280,6 +288,10 @@ def live_command(
     def announce(running: Any) -> None:
         console.print(f"margtrack live: {source.info.description}; serving {running.url} "
                       "(Ctrl-C to stop)", soft_wrap=True)
+        default = ", the default" if bvh_unit == "cm" else ""
+        console.print(f"the page's BVH exports: lengths in {bvh_unit} (--bvh-unit "
+                      f"{bvh_unit}{default}): import into Blender with scale "
+                      f"{BVH_UNITS[bvh_unit]:g}", soft_wrap=True)
 
     session = run_live(source, method, port, host=host, token=token, params=params,
                        announce=announce,
@@ -287,7 +299,8 @@ def live_command(
                                                 soft_wrap=True),
                        calibrate_at_start=calibrate and has_body, heading=cast(Heading, heading),
                        forward_axis=axis, out_dir=out, duration_s=duration, record=record,
-                       no_mag=no_mag, lever_arms=arms, walking_root=walking_root)
+                       no_mag=no_mag, lever_arms=arms, walking_root=walking_root,
+                       bvh_unit=bvh_unit)
     recorder = getattr(session.viewer, "raw_recorder", None)
     if recorder is not None and record is not None:
         console.print(f"raw recording: {recorder.n_frames} frames written to "

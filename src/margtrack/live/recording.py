@@ -215,6 +215,8 @@ class LiveRecording:
     frame : earth frame.
     avatars : the body models (None if the sensors name none).
     calibrations : per person, the offsets in force at the end of the recording.
+    root_m : (N, A, 3) m, every person's root as the engine's walking root moved it (NaN
+        while it stayed at the avatar's place), or None: the roots never walked.
     """
 
     t_s: Array
@@ -223,6 +225,7 @@ class LiveRecording:
     frame: str
     avatars: Avatars | None
     calibrations: tuple[body.Calibration, ...]
+    root_m: Array | None = None
 
     @property
     def n_frames(self) -> int:
@@ -253,11 +256,25 @@ class LiveRecording:
         """Median interval between frames, s (the BVH frame time)."""
         return float(np.median(np.diff(self.t_s)))
 
+    def root_positions_m(self, person: int = 0) -> Array:
+        """(N, 3) m, one person's root at every frame: where the walking root had it, else
+        (before it walked, or without it) the avatar's place."""
+        avatars = self._check(person)
+        place = avatars.root_positions_m[person]
+        if self.root_m is None:
+            return np.tile(place, (self.n_frames, 1))
+        root = np.array(self.root_m[:, person], dtype=np.float64)
+        still = np.isnan(root).any(axis=1)
+        root[still] = place
+        return root
+
     def write_bvh(self, path: str | Path, person: int = 0, unit: str = "cm") -> Path:
-        """BVH of one person at the recording's median frame interval; returns the path."""
+        """BVH of one person at the recording's median frame interval, the root's channels
+        from :meth:`root_positions_m`, lengths in ``unit`` (cm or m, as ``margtrack body
+        --bvh-unit``); returns the path."""
         avatars = self._check(person)
         body.write_bvh(path, avatars.skeleton, self.segment_orientations(person),
-                       self.frame_time_s(), avatars.root_positions_m[person], unit)
+                       self.frame_time_s(), self.root_positions_m(person), unit)
         return Path(path)
 
     def write_joint_angles_csv(self, path: str | Path, person: int = 0) -> Path:
@@ -265,14 +282,15 @@ class LiveRecording:
         body.write_joint_angles_csv(path, self.t_s, self.joint_angles(person))
         return Path(path)
 
-    def export(self, folder: str | Path, stem: str = "live", people: Sequence[int] = (0,)
-               ) -> list[Path]:
-        """BVH and joint-angle CSV of each listed person into ``folder``; returns the files."""
+    def export(self, folder: str | Path, stem: str = "live", people: Sequence[int] = (0,),
+               unit: str = "cm") -> list[Path]:
+        """BVH (lengths in ``unit``) and joint-angle CSV of each listed person into
+        ``folder``; returns the files."""
         out = Path(folder)
         out.mkdir(parents=True, exist_ok=True)
         files = []
         for a in people:
             suffix = "" if len(people) == 1 else f"_{a}"
-            files.append(self.write_bvh(out / f"{stem}{suffix}.bvh", a))
+            files.append(self.write_bvh(out / f"{stem}{suffix}.bvh", a, unit))
             files.append(self.write_joint_angles_csv(out / f"{stem}{suffix}_joints.csv", a))
         return files
