@@ -113,3 +113,30 @@ def test_cli_replay_uses_the_session_choice_unless_a_flag_says_otherwise(session
     text = " ".join(flagged.output.split())
     assert "the session ran with --no-mag; replaying with --mag (from the command line)" in text
     assert "no_mag" not in json.loads(override.read_text())["engine"]
+
+
+def test_explicit_lever_arms_win_and_an_older_recording_replays_with_mag(session, tmp_path
+                                                                          ) -> None:
+    from margtrack.cli import app
+
+    _, _, path = session
+    arms = tmp_path / "arms.json"
+    other = [[0.01, -0.25, 0.0], [0.0, 0.2, 0.02]]
+    arms.write_text(json.dumps({"left_knee": {"parent_m": other[0], "child_m": other[1]}}))
+    out = tmp_path / "given.json"
+    ran = CliRunner().invoke(app, ["live", "--replay", str(path), "--headless", "--speed",
+                                   "inf", "--lever-arms", str(arms), "--summary", str(out)])
+    assert ran.exit_code == 0, ran.output
+    assert "lever arms: --lever-arms (1 joint(s))" in " ".join(ran.output.split())
+    rows = {j["joint"]: j for j in json.loads(out.read_text())["engine"]["joints"]}
+    assert rows["left_knee"]["lever_arms_m"] == other
+    # a recording written before the session's choice was stored: no_mag unknown
+    older = dataclasses.replace(read_live_recording(path), meta={}, path=None)
+    source = LiveReplaySource(older)
+    assert source.no_mag is None and source.lever_arms == {}
+    old_path = write_live_recording(older, tmp_path / "older.hdf5")
+    ran = CliRunner().invoke(app, ["live", "--replay", str(old_path), "--headless",
+                                   "--speed", "inf"])
+    assert ran.exit_code == 0, ran.output
+    assert ("the session ran with an unrecorded magnetometer choice (--mag assumed); "
+            "replaying with --mag (the default)") in " ".join(ran.output.split())

@@ -319,7 +319,8 @@ def _replayed_session(source: Any, no_mag: bool, no_mag_given: bool, arms: Any,
            False: "--mag"}[session.no_mag]
     used = "--no-mag" if no_mag else "--mag"
     console.print(f"the session ran with {ran}; replaying with {used} "
-                  + ("(from the command line)" if no_mag_given else "(the session's)"))
+                  + ("(from the command line)" if no_mag_given else
+                     "(the default)" if session.no_mag is None else "(the session's)"))
     if not no_mag:
         return arms
     if arms is not None:
