@@ -117,3 +117,21 @@ def test_the_page_exports_the_walking_root_in_the_chosen_unit(tmp_path) -> None:
         assert np.linalg.norm((root - engine.avatars.root_positions_m[0])[:2]) > 1.0
     finally:
         session.stop()
+
+
+def test_cli_states_the_bvh_unit_and_refuses_another(tmp_path) -> None:
+    pytest.importorskip("viser", reason="the live page needs viser (pip install viser)")
+    from typer.testing import CliRunner
+
+    from margtrack.cli import app
+
+    args = ["live", "--demo", "--preset", "lower", "--port", "0", "--speed", "10",
+            "--duration", "1", "--out", str(tmp_path)]
+    for unit, text in (("m", "lengths in m (--bvh-unit m): import into Blender with scale 1"),
+                       (None, "lengths in cm (--bvh-unit cm, the default): import into "
+                              "Blender with scale 0.01")):
+        result = CliRunner().invoke(app, args + ([] if unit is None else ["--bvh-unit", unit]))
+        assert result.exit_code == 0, result.output
+        assert text in " ".join(result.output.split())
+    wrong = CliRunner().invoke(app, [*args, "--bvh-unit", "mm"])
+    assert wrong.exit_code == 2 and "--bvh-unit must be cm or m, got 'mm'" in wrong.output
