@@ -18,9 +18,7 @@ The page is served on http://127.0.0.1:PORT (8080 by default); stop with Ctrl-C.
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, TypeVar, cast
@@ -134,12 +132,14 @@ def live_command(
     = None,
     sensors: Annotated[str | None, typer.Option(
         help="UDP/serial sensors: a count or comma-separated names.")] = None,
-    no_mag: Annotated[bool, typer.Option(
-        "--no-mag", help="No magnetometer: every filter runs without it and, with a body "
-        "model, every segment but the pelvis is its parent's orientation times the relative "
-        "orientation across the joint (gyroscopes and accelerometers of both; lever arms "
-        "estimated after a few seconds of motion, or --lever-arms). UDP/serial/OSC lines "
-        "then carry no mag.")] = False,
+    no_mag: Annotated[bool | None, typer.Option(
+        "--no-mag/--mag", show_default=False, help="No magnetometer: every filter runs "
+        "without it and, with a body model, every segment but the pelvis is its parent's "
+        "orientation times the relative orientation across the joint (gyroscopes and "
+        "accelerometers of both; lever arms estimated after a few seconds of motion, or "
+        "--lever-arms). UDP/serial/OSC lines then carry no mag. Default --mag, except when "
+        "replaying a --record file: the session's choice and lever arms (either flag "
+        "overrides it).")] = None,
     lever_arms: Annotated[Path | None, typer.Option(
         "--lever-arms", help="With --no-mag: known lever arms, a JSON object from joint "
         "name (left_knee, ...) to an object with parent_m and child_m, each \\[x, y, z] "
@@ -182,6 +182,10 @@ def live_command(
     duration: Annotated[float | None, typer.Option(
         "--duration", help="Stop after this many seconds.")] = None,
     out: Annotated[Path | None, typer.Option(help="Folder for recordings' exports.")] = None,
+    bvh_unit: Annotated[str, typer.Option(
+        "--bvh-unit", help="Length unit of the page's BVH exports: cm (the default; "
+        "Blender's BVH import scale 0.01) or m (scale 1), as margtrack body --bvh-unit.")]
+    = "cm",
     headless: Annotated[bool, typer.Option(
         "--headless", help="No page: run the engine and print its statistics.")] = False,
     record: Annotated[Path | None, typer.Option(
@@ -212,8 +216,14 @@ def live_command(
 ) -> None:
     """Track sensors live and show the avatar in a browser page (000's prototype system)."""
     console = Console()
+    no_mag_given = no_mag is not None
+    no_mag = bool(no_mag)
     if heading is None:
         heading = "north" if demo and not no_mag else "pelvis"
+    from margtrack.body.export_bvh import BVH_UNITS
+
+    if bvh_unit not in BVH_UNITS:
+        raise ValueError(f"--bvh-unit must be cm or m, got {bvh_unit!r}")
     if heading not in ("north", "pelvis"):
         raise ValueError(f"--heading must be north or pelvis, got {heading!r}")
     if heading == "north" and forward_axis is not None:
@@ -229,6 +239,9 @@ def live_command(
                      no_mag, osc, lsl,
                      udp_host=_udp_host(udp_host, udp is not None or osc is not None),
                      time_unit=time_unit)
+    replayed = source if getattr(source, "recording", None) is not None else None
+    if replayed is not None and not no_mag_given:  # a raw live recording: as it ran
+        no_mag = bool(getattr(replayed, "no_mag", False))
     if demo and no_mag and forward_axis is None and heading == "pelvis":
         # the simulated sensors are mounted at random: the pelvis sensor's forward axis
         # comes from the simulation (person 0's mounting)
@@ -252,13 +265,19 @@ def live_command(
         from margtrack.live.joint_chain import read_chain_lever_arms
 
         arms = read_chain_lever_arms(lever_arms)
-    recorded = getattr(source, "recording", None)  # a raw live recording replayed
+    recorded = getattr(replayed, "recording", None)  # a raw live recording replayed
     if recorded is not None and method == "default" and not param:
         method, params, calibrate = recorded.method, dict(recorded.params), False
         console.print(f"replaying {recorded.n_frames} frames with the session's method "
                       f"{method} and its parameters and calibrations")
+    if recorded is not None:
+        from margtrack.cli.live_session import replayed_session
+
+        arms = replayed_session(replayed, no_mag, no_mag_given, arms, console)
     if headless:
-        _headless(source, method, params, calibrate, heading, axis, duration, console,
+        from margtrack.cli.live_session import headless
+
+        headless(source, method, params, calibrate, heading, axis, duration, console,
                   record, force, summary=summary, stale_after_s=stale_after_s,
                   no_mag=no_mag, lever_arms=arms, walking_root=walking_root)
         return
@@ -271,6 +290,10 @@ def live_command(
     def announce(running: Any) -> None:
         console.print(f"margtrack live: {source.info.description}; serving {running.url} "
                       "(Ctrl-C to stop)", soft_wrap=True)
+        default = ", the default" if bvh_unit == "cm" else ""
+        console.print(f"the page's BVH exports: lengths in {bvh_unit} (--bvh-unit "
+                      f"{bvh_unit}{default}): import into Blender with scale "
+                      f"{BVH_UNITS[bvh_unit]:g}", soft_wrap=True)
 
     session = run_live(source, method, port, host=host, token=token, params=params,
                        announce=announce,
@@ -278,7 +301,8 @@ def live_command(
                                                 soft_wrap=True),
                        calibrate_at_start=calibrate and has_body, heading=cast(Heading, heading),
                        forward_axis=axis, out_dir=out, duration_s=duration, record=record,
-                       no_mag=no_mag, lever_arms=arms, walking_root=walking_root)
+                       no_mag=no_mag, lever_arms=arms, walking_root=walking_root,
+                       bvh_unit=bvh_unit)
     recorder = getattr(session.viewer, "raw_recorder", None)
     if recorder is not None and record is not None:
         console.print(f"raw recording: {recorder.n_frames} frames written to "
@@ -302,56 +326,3 @@ def _calibrated(source: Source, specs: list[str]) -> Source:
                              f"{', '.join(names)}")
         wrapped.set_calibration(names.index(name), load_calibration(file))
     return wrapped  # type: ignore[return-value]
-
-
-def _headless(source: Source, method: str, params: list[str] | dict[str, Any],
-              calibrate: bool, heading: str,
-              axis: Any, duration: float | None, console: Console,
-              record: Path | None = None, force: bool = False, *,
-              summary: Path | None = None, stale_after_s: float | None = None,
-              no_mag: bool = False, lever_arms: Any = None,
-              walking_root: bool = False) -> None:
-    import time
-
-    from margtrack.live.engine import Engine
-    from margtrack.live.recording import RawRecorder
-
-    engine = Engine(source.info, method, params, heading=cast(Heading, heading),
-                    forward_axis=axis, stale_after_s=stale_after_s,
-                    summary_path=None if summary is None else str(summary),
-                    no_mag=no_mag, lever_arms=lever_arms, walking_root=walking_root)
-    recorder = RawRecorder(engine) if record is not None else None
-    if recorder is not None:
-        recorder.start()
-    if calibrate and engine.avatars is not None:
-        engine.request_calibration()
-    end = math.inf if duration is None else time.perf_counter() + duration
-    with engine.start(source):
-        with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C ends the run cleanly
-            while engine.running and time.perf_counter() < end:
-                engine.wait(min(0.2, max(end - time.perf_counter(), 0.0)))
-    if recorder is not None and record is not None:
-        console.print(f"raw recording: {recorder.n_frames} frames written to "
-                      f"{recorder.save(record, force=force)}")
-    stats = engine.stats()
-    console.print(f"{source.info.description}: {source.info.n_sensors} sensors, method "
-                  f"{engine.method}")
-    console.print(stats.summary())
-    console.print(f"calibration: {stats.calibration}")
-    root = engine.latest.root_m if engine.latest is not None else None
-    if root is not None and engine.avatars is not None:
-        import numpy as np
-
-        moved = root - engine.avatars.root_positions_m  # x, y horizontal in ENU and NED
-        console.print("root (pelvis) moved by the feet, horizontally from its start: "
-                      + "; ".join(f"{p or 'the person'} {np.hypot(m[0], m[1]):.2f} m"
-                                  for p, m in zip(engine.avatars.people, moved, strict=True)))
-    if no_mag:
-        from margtrack.live.viewer_panels import joints_lines
-
-        for line in joints_lines(engine.joints):
-            console.print(line, soft_wrap=True)
-    if summary is not None:
-        console.print(f"summary written to {summary}")
-    if stats.error:
-        raise ValueError(stats.error)

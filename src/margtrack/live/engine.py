@@ -1,16 +1,16 @@
 """The real-time engine: filters for every sensor, the body model, poses at the display rate.
 
-Threading: one worker thread per engine (:meth:`Engine.start`, :mod:`~margtrack.live.worker`)
-polls the source, assembles frames (:class:`~margtrack.live.assembler.FrameAssembler`) and
-processes them; nothing else runs the filters. What arrived while a batch was processed is
+Threading: one worker thread per engine (:mod:`~margtrack.live.engine_thread`: start,
+wait, stop, the summary) polls the source, assembles frames
+(:class:`~margtrack.live.assembler.FrameAssembler`) and processes them. What arrived while a
+batch was processed is
 the next batch of N frames, run in *one* multi-sensor kernel call on (S, N, 3) arrays
 (reused buffers, :mod:`~margtrack.live.filtering`), so a slow moment costs latency, not
 samples; a backlog is run in batches of at most ``MAX_BATCH_FRAMES`` (the kernels' best
 rate per sample, and a pose published between them), not in one ever larger batch whose
 fresh buffers cost page faults that put the engine further behind. Other threads talk to
 the engine through thread-safe methods (:meth:`set_params`, :meth:`request_calibration`,
-:meth:`start_recording`/:meth:`stop_recording`, :meth:`subscribe`, :meth:`stats`);
-:meth:`stop` (or leaving the ``with`` block) joins the worker and closes the source.
+:meth:`start_recording`/:meth:`stop_recording`, :meth:`subscribe`, :meth:`stats`).
 Without :meth:`start`, :meth:`process` runs the same work synchronously. No module-level
 state: engines are independent.
 
@@ -46,20 +46,21 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from margtrack import methods
 from margtrack.body.offsets import Heading
-from margtrack.estimator import Estimator, Params
+from margtrack.estimator import Params
 from margtrack.live.assembler import FrameAssembler, Frames, concatenate
 from margtrack.live.avatars import Avatars
 from margtrack.live.calibrations import Calibrations
 from margtrack.live.clocks import SensorClocks
+from margtrack.live.engine_setup import checked_setup
+from margtrack.live.engine_thread import EngineThread
 from margtrack.live.filtering import SensorFilters
 from margtrack.live.joint_chain import JointChain, RecentFrames
 from margtrack.live.orientation_log import OrientationLog
 from margtrack.live.pose import Pose
 from margtrack.live.protocol import Chunk, Source, SourceInfo
 from margtrack.live.recording import LiveRecording
-from margtrack.live.stats import EngineStats, StatsMeter, sensor_counts, summary_dict, write_summary
+from margtrack.live.stats import StatsMeter
 from margtrack.live.subscribers import Subscribers
 from margtrack.live.walking_root import LiveRoot, WalkingRoot
 from margtrack.live.worker import Worker
@@ -74,7 +75,7 @@ __all__ = ["MAX_BATCH_FRAMES", "Engine", "Pose"]
 MAX_BATCH_FRAMES = 8
 
 
-class Engine:
+class Engine(EngineThread):
     """Filters, body model and publishing for the sensors of one source (module docstring).
 
     Parameters
@@ -133,29 +134,8 @@ class Engine:
         if not (math.isfinite(display_hz) and display_hz > 0):
             raise ValueError(f"display_hz must be a finite number > 0, got {display_hz}")
         self.info = info
-        self.method = methods.get(method).name
-        if getattr(methods.get(method), "offline", False):
-            raise ValueError(f"method {self.method!r} is offline (it needs the whole recording); "
-                             "live streams need a causal method such as 'robust'")
-        self._estimator: Estimator = methods.create(method, params, rate_hz=info.rate_hz)
-        if (no_mag or not info.has_mag) and not type(self._estimator).mag_optional:
-            why = "--no-mag leaves it out" if no_mag else "the source has none"
-            raise ValueError(f"method {self.method!r} needs a magnetometer; {why}: choose a "
-                             "method that runs without one (margtrack methods)")
-        if lever_arms and not no_mag:
-            raise ValueError("lever arms (--lever-arms) serve the joint constraint of --no-mag; "
-                             "give them with --no-mag (no_mag=True)")
-        frame = self._estimator.params.frame
-        if isinstance(avatars, str):
-            if avatars != "auto":
-                raise ValueError(f"avatars must be 'auto', None or Avatars, got {avatars!r}")
-            avatars = Avatars.from_names(info.sensor_names, height_m, frame)
-        if avatars is not None and avatars.skeleton.frame != frame:
-            raise ValueError(f"avatars are in {avatars.skeleton.frame} but the filter in {frame}")
-        if no_mag and heading == "north" and avatars is not None:
-            raise ValueError("heading 'north' needs the magnetometers, which --no-mag leaves "
-                             "out: use the pelvis heading (--heading pelvis, and the pelvis "
-                             "sensor's --forward-axis)")
+        self.method, self._estimator, avatars = checked_setup(
+            info, method, params, avatars, height_m, heading, no_mag, lever_arms)
         self.avatars = avatars
         self.no_mag = bool(no_mag)
         self._chain = (JointChain(avatars, info.rate_hz, lever_arms)
@@ -187,7 +167,7 @@ class Engine:
         self._frame_index = -1
         self._latest: Pose | None = None
         self._source: Source | None = None
-        self._worker = Worker(self.push, self._finish)
+        self._worker = Worker(self.push, self._finish)  # EngineThread runs it
         self._error = ""
         #: hooks called with every batch of frames before / after it is processed (on the
         #: worker thread): raw recording (:class:`~margtrack.live.recording.RawRecorder`) and
@@ -249,6 +229,12 @@ class Engine:
         """With ``no_mag`` and a body model, per constrained joint: its lever arms and
         state (:meth:`~margtrack.live.joint_chain.JointChain.describe`); else empty."""
         return [] if self._chain is None else self._chain.describe()
+
+    @property
+    def lever_arms_in_force(self) -> dict[str, Any]:
+        """With ``no_mag`` and a body model, joint name -> the lever arms in force
+        (:meth:`~margtrack.live.joint_chain.JointChain.lever_arms_in_force`); else empty."""
+        return {} if self._chain is None else self._chain.lever_arms_in_force()
 
     @property
     def calibration_window_s(self) -> tuple[float, float] | None:
@@ -358,12 +344,9 @@ class Engine:
             q_last = self._filters.q_last
         t1 = time.perf_counter()
         self._frame_index += frames.n_frames
-        if record is not None or request is not None:
-            q_frames = np.swapaxes(q, 0, 1)  # (N, S, 4)
-            if record is not None:
-                record(frames.t_s, q_frames)
-            if request is not None:
-                self._body.feed(request, frames.t_s, q_frames)
+        q_frames = np.swapaxes(q, 0, 1)  # (N, S, 4), a view
+        if request is not None:
+            self._body.feed(request, frames.t_s, q_frames)
         tick = math.floor(frames.t_s[-1] * self.display_hz + 1e-6)
         pose = None
         if tick > self._last_tick:
@@ -372,9 +355,13 @@ class Engine:
             # q[:, -1] is a strided view (its copy 0.89 ms against 0.33 at 150,000 sensors)
             pose = Pose.of(self._frame_index, frames.t_s[-1], frames.arrival_s[-1],
                            q_last, self.avatars, self._body.offsets)
+        roots = None
         if self._root is not None:  # the roots follow the feet (live/walking_root.py)
-            self._root.batch(frames.t_s, frames.gyr, q, self._body.offsets, self._body.count)
+            roots = self._root.batch(frames.t_s, frames.gyr, q, self._body.offsets,
+                                     self._body.count)
             pose = None if pose is None else self._root.walk(pose)
+        if record is not None:
+            record(frames.t_s, q_frames, roots)
         t2 = time.perf_counter()
         if pose is not None:
             self._publish(pose)
@@ -405,75 +392,3 @@ class Engine:
         if failed:
             self._meter.subscriber_errors += failed
             self._error = error
-
-    # -- statistics ------------------------------------------------------------------------
-    def stats(self) -> EngineStats:
-        """A snapshot of timing, latency, losses and sensor health."""
-        a, c, f = self._assembler, self._clocks, self._filters
-        malformed = self._source.stats.malformed if self._source is not None else 0
-        dropped = a.dropped.copy()
-        stale = a.stale
-        stats = self._meter.snapshot(self.info.n_sensors, dropped, a.late, malformed,
-                                     self.calibration_status, self._error,
-                                     counts=sensor_counts(c, a, f), stale=stale,
-                                     stale_s=a.stale_s.copy(), errors=tuple(f.errors))
-        return dataclasses.replace(stats, session_s=self.session_time_s,
-                                   engine_error=self._fatal,
-                                   lost_samples=int(c.lost.sum()),
-                                   stale_sensors=int(stale.sum()))
-
-    def summary(self) -> dict[str, Any]:
-        """The headless summary (:func:`margtrack.live.stats.summary_dict`) now."""
-        extra: dict[str, Any] = {"no_mag": True, "joints": self.joints} if self.no_mag else {}
-        if self._root is not None:
-            extra["root_moved_m"] = self._root.moved_m(self._latest)
-        return summary_dict(self.stats(), method=self.method, running=self.running,
-                            stale_after_s=self.stale_after_s, **extra)
-
-    def write_summary(self, path: str) -> None:
-        """Write :meth:`summary` to ``path`` as JSON, atomically (replaces an older file)."""
-        write_summary(self.summary(), path, force=True)
-
-    # -- the worker thread (margtrack.live.worker) -----------------------------------------
-    def start(self, source: Source, poll_timeout_s: float = 0.02) -> Engine:
-        """Run the engine on ``source`` in a worker thread (opened here, closed at the end)."""
-        if self._worker.started:
-            raise ValueError("this engine was already started; build a new one")
-        if tuple(source.info.sensor_names) != self.info.sensor_names:
-            raise ValueError("the source's sensors differ from the ones the engine was built for")
-        self._source = source
-        attach = getattr(source, "attach_engine", None)  # a replay that re-applies events
-        if attach is not None:
-            attach(self)
-        self._worker.start(source, poll_timeout_s)
-        return self
-
-    def _finish(self, fatal: str | None) -> None:
-        """The worker's last act: note why it stopped on its own, write the summary."""
-        if fatal is not None:
-            self._fatal = fatal
-            self._error = fatal
-        if self.summary_path is not None:
-            try:
-                self.write_summary(self.summary_path)
-            except Exception as exc:  # the session's result stays in stats()
-                self._error = f"could not write the summary {self.summary_path}: {exc!r}"
-
-    @property
-    def running(self) -> bool:
-        """Whether the worker thread is alive."""
-        return self._worker.running
-
-    def wait(self, timeout_s: float | None = None) -> bool:
-        """Wait until the source is exhausted (or the engine stopped); True if it ended."""
-        return self._worker.wait(timeout_s)
-
-    def stop(self, timeout_s: float = 5.0) -> None:
-        """Stop the worker, close the source and join the thread (idempotent)."""
-        self._worker.stop(timeout_s)
-
-    def __enter__(self) -> Engine:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()

@@ -41,7 +41,8 @@ from margtrack.live.joint_stream import BUFFER_S, JointStream
 
 Array = NDArray[np.float64]
 
-__all__ = ["JointChain", "RecentFrames", "read_chain_lever_arms"]
+__all__ = ["JointChain", "RecentFrames", "lever_arms_from_json", "lever_arms_to_json",
+           "read_chain_lever_arms"]
 
 
 def read_chain_lever_arms(path: str | Path) -> dict[str, LeverArms]:
@@ -65,6 +66,27 @@ def read_chain_lever_arms(path: str | Path) -> dict[str, LeverArms]:
                 for name, v in data.items()}
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{p}: expected JSON like {example}: {exc}") from None
+
+
+def lever_arms_to_json(arms: Mapping[str, LeverArms]) -> dict[str, Any]:
+    """Joint name -> lever arms as JSON-ready values (floats round-trip exactly; a given
+    arm's NaN std as None): ``parent_m``, ``child_m``, ``std_m``, ``source``."""
+    return {name: {"parent_m": a.r_m[0].tolist(), "child_m": a.r_m[1].tolist(),
+                   "std_m": [[None if np.isnan(v) else float(v) for v in row]
+                             for row in a.std_m],
+                   "source": a.source} for name, a in arms.items()}
+
+
+def lever_arms_from_json(data: Mapping[str, Any]) -> dict[str, LeverArms]:
+    """The inverse of :func:`lever_arms_to_json` (the source kept: an estimated arm stays
+    estimated, so its joint counts as settled as it did in the session)."""
+    out = {}
+    for name, v in data.items():
+        given = LeverArms.given([v["parent_m"], v["child_m"]])
+        std = np.array([[np.nan if x is None else x for x in row] for row in v["std_m"]],
+                       dtype=np.float64)
+        out[str(name)] = LeverArms(given.r_m, std, str(v["source"]))
+    return out
 
 
 def _product(p: Array, q: Array) -> Array:
@@ -148,6 +170,16 @@ class JointChain:
         for (_, _, p, c), stream in zip(self.joints, self._streams, strict=True):
             out[c] = _product(out[p], stream.smoothed(t_s))
         return out
+
+    def lever_arms_in_force(self) -> dict[str, LeverArms]:
+        """Joint name -> the lever arms in force, for the joints whose arms are in force and
+        the same for every person (given ones; one person's estimated ones)."""
+        by_name: dict[str, list[LeverArms | None]] = {}
+        for (_, name, _, _), s in zip(self.joints, self._streams, strict=True):
+            by_name.setdefault(name, []).append(s.lever_arms)
+        return {name: arms[0] for name, arms in by_name.items()
+                if arms[0] is not None and all(
+                    a is not None and np.array_equal(a.r_m, arms[0].r_m) for a in arms)}
 
     def describe(self) -> list[dict[str, Any]]:
         """Per joint: person, name, sensors, lever arms (m, with std) and their state."""

@@ -19,6 +19,7 @@ import numpy as np
 
 from margtrack.io.live_hdf5 import RawLiveRecording
 from margtrack.live.assembler import Frames
+from margtrack.live.joint_chain import lever_arms_from_json
 from margtrack.live.protocol import BaseSource, Chunk, Pacer, SourceInfo
 from margtrack.live.recording import calibration_from_dict
 
@@ -37,8 +38,11 @@ class LiveReplaySource(BaseSource):
     speed : playback speed factor > 0 (``math.inf``: as fast as polled); a batch is
         delivered when its last frame is due.
 
-    Attributes ``method`` and ``params`` are the session's (build the engine with them to
-    reproduce it). With another method the recorded parameter changes are skipped (they
+    Attributes ``method`` and ``params`` are the session's, and so are ``no_mag`` (whether
+    it ran without magnetometers) and ``lever_arms`` (joint name -> the lever arms in force
+    when its recording started; joints left out were estimated during it, and are again):
+    build the engine with them to reproduce it. A recording from before these were stored
+    has ``no_mag`` None. With another method the recorded parameter changes are skipped (they
     belong to the recorded method) and counted in ``skipped_events``.
     """
 
@@ -49,6 +53,9 @@ class LiveReplaySource(BaseSource):
                                     f"replay {name}"))
         self.recording = rec
         self.method, self.params = rec.method, dict(rec.params)
+        no_mag = rec.meta.get("no_mag")
+        self.no_mag: bool | None = None if no_mag is None else bool(no_mag)
+        self.lever_arms = lever_arms_from_json(rec.meta.get("lever_arms") or {})
         self._ends = np.cumsum(rec.batch_frames)
         self._batch = 0
         self._pacer = Pacer(float(rec.t_s[0]) if rec.n_frames else 0.0, speed)

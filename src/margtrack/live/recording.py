@@ -9,8 +9,13 @@ from which it applies. :meth:`RawRecorder.save` writes it as a margtrack live re
 method reproduces the session's poses exactly (stale sensors and filter restarts included:
 their flags are recorded and given back to the engine), provided the recording started
 with the engine (``margtrack live --record FILE``; a recording started later begins from a
-fresh filter and matches once it has converged). Memory: about 80 bytes per sensor sample (15
-sensors at 100 Hz: 430 MB per hour), written out when the recording stops.
+fresh filter and matches once it has converged). The file's metadata also says whether the
+session ran without magnetometers (``no_mag``) and, then, the lever arms in force when the
+recording started (``lever_arms``: the given ones, and those estimated before a late start)
+and when it stopped (``lever_arms_at_stop``); a replay runs the same way
+(:class:`margtrack.live.replay.LiveReplaySource` ``no_mag``, ``lever_arms``). Memory:
+about 80 bytes per sensor sample (15 sensors at 100 Hz: 430 MB per hour), written out
+when the recording stops.
 
 Orientations (:class:`LiveRecording`): the engine records every processed frame's sensor
 orientations (at the sensors' rate, not the display rate); the body model is applied at
@@ -37,6 +42,7 @@ from margtrack import body
 from margtrack.io.live_hdf5 import LiveEvent, RawLiveRecording, write_live_recording
 from margtrack.live.assembler import Frames
 from margtrack.live.avatars import Avatars
+from margtrack.live.joint_chain import lever_arms_to_json
 
 if TYPE_CHECKING:
     from margtrack.live.engine import Engine
@@ -83,6 +89,7 @@ class RawRecorder:
         self._calibrations: list[Any] = []
         self._start_params: dict[str, Any] = {}
         self._started_utc = ""
+        self._session: dict[str, Any] = {}
         engine.after_batch.append(self._on_batch)
         #: whether :meth:`stop` also removes the hook (a recorder made for one recording)
         self.detach_on_stop = False
@@ -113,6 +120,9 @@ class RawRecorder:
             self._start_params = self._params.as_dict()
             self._calibrations = engine.calibrations
             self._started_utc = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+            self._session = {"no_mag": bool(engine.no_mag)}
+            if engine.no_mag:
+                self._session["lever_arms"] = lever_arms_to_json(engine.lever_arms_in_force)
             if engine.avatars is not None:
                 self._events.append(self._calibration_event(0, float("nan")))
 
@@ -158,7 +168,7 @@ class RawRecorder:
         """Stop and return what was recorded (``ValueError`` if not recording or empty)."""
         with self._lock:
             parts, self._parts = self._parts, None
-            events, n = list(self._events), self._n
+            events, n, session = list(self._events), self._n, dict(self._session)
         if parts is None:
             raise ValueError("no raw recording is running; call start() first")
         if self.detach_on_stop:
@@ -167,6 +177,8 @@ class RawRecorder:
             raise ValueError("the raw recording holds no frame: nothing arrived while it ran")
         engine = self.engine
         mags = [p[3] for p in parts]
+        if engine.no_mag:
+            session["lever_arms_at_stop"] = lever_arms_to_json(engine.lever_arms_in_force)
         events = [e for e in events if e.frame < n or e.kind == "note"]
         return RawLiveRecording(
             sensor_names=tuple(engine.info.sensor_names),
@@ -183,7 +195,8 @@ class RawRecorder:
             description=engine.info.description,
             meta={"started_utc": self._started_utc,
                   # device time = t + origin for a sensor whose clock never reset
-                  "session_origin_s": float(getattr(engine, "session_origin_s", 0.0))})
+                  "session_origin_s": float(getattr(engine, "session_origin_s", 0.0)),
+                  **session})
 
     def save(self, path: str | Path, force: bool = False) -> Path:
         """:meth:`stop` and write the file atomically; returns its path."""
@@ -202,6 +215,8 @@ class LiveRecording:
     frame : earth frame.
     avatars : the body models (None if the sensors name none).
     calibrations : per person, the offsets in force at the end of the recording.
+    root_m : (N, A, 3) m, every person's root as the engine's walking root moved it (NaN
+        while it stayed at the avatar's place), or None: the roots never walked.
     """
 
     t_s: Array
@@ -210,6 +225,7 @@ class LiveRecording:
     frame: str
     avatars: Avatars | None
     calibrations: tuple[body.Calibration, ...]
+    root_m: Array | None = None
 
     @property
     def n_frames(self) -> int:
@@ -240,11 +256,25 @@ class LiveRecording:
         """Median interval between frames, s (the BVH frame time)."""
         return float(np.median(np.diff(self.t_s)))
 
+    def root_positions_m(self, person: int = 0) -> Array:
+        """(N, 3) m, one person's root at every frame: where the walking root had it, else
+        (before it walked, or without it) the avatar's place."""
+        avatars = self._check(person)
+        place = avatars.root_positions_m[person]
+        if self.root_m is None:
+            return np.tile(place, (self.n_frames, 1))
+        root = np.array(self.root_m[:, person], dtype=np.float64)
+        still = np.isnan(root).any(axis=1)
+        root[still] = place
+        return root
+
     def write_bvh(self, path: str | Path, person: int = 0, unit: str = "cm") -> Path:
-        """BVH of one person at the recording's median frame interval; returns the path."""
+        """BVH of one person at the recording's median frame interval, the root's channels
+        from :meth:`root_positions_m`, lengths in ``unit`` (cm or m, as ``margtrack body
+        --bvh-unit``); returns the path."""
         avatars = self._check(person)
         body.write_bvh(path, avatars.skeleton, self.segment_orientations(person),
-                       self.frame_time_s(), avatars.root_positions_m[person], unit)
+                       self.frame_time_s(), self.root_positions_m(person), unit)
         return Path(path)
 
     def write_joint_angles_csv(self, path: str | Path, person: int = 0) -> Path:
@@ -252,14 +282,15 @@ class LiveRecording:
         body.write_joint_angles_csv(path, self.t_s, self.joint_angles(person))
         return Path(path)
 
-    def export(self, folder: str | Path, stem: str = "live", people: Sequence[int] = (0,)
-               ) -> list[Path]:
-        """BVH and joint-angle CSV of each listed person into ``folder``; returns the files."""
+    def export(self, folder: str | Path, stem: str = "live", people: Sequence[int] = (0,),
+               unit: str = "cm") -> list[Path]:
+        """BVH (lengths in ``unit``) and joint-angle CSV of each listed person into
+        ``folder``; returns the files."""
         out = Path(folder)
         out.mkdir(parents=True, exist_ok=True)
         files = []
         for a in people:
             suffix = "" if len(people) == 1 else f"_{a}"
-            files.append(self.write_bvh(out / f"{stem}{suffix}.bvh", a))
+            files.append(self.write_bvh(out / f"{stem}{suffix}.bvh", a, unit))
             files.append(self.write_joint_angles_csv(out / f"{stem}{suffix}_joints.csv", a))
         return files

@@ -46,6 +46,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from margtrack import body
+from margtrack.body.export_bvh import BVH_UNITS
 from margtrack.body.offsets import Heading
 from margtrack.live import calibration_panel
 from margtrack.live.engine import Engine, Pose
@@ -219,13 +220,15 @@ class LiveViewer:
         rec = self.engine.stop_recording()
         try:
             raw = calibration_panel.page_recording(self, False)  # raw stream, .hdf5
-            self.exported = [*export_recording(rec, self.out_dir), *([raw] if raw else [])]
+            unit = getattr(self, "bvh_unit", "cm")
+            self.exported = [*export_recording(rec, self.out_dir, bvh_unit=unit),
+                             *([raw] if raw else [])]
         except (ValueError, OSError) as exc:
             self._message = f"export failed: {exc}"
             self._exports.content = f"**export failed:** {exc}"
         else:
-            self._message = f"exported {len(self.exported)} files"
-            self._exports.content = "exported:\n\n" + "\n".join(
+            self._message = f"exported {len(self.exported)} files (BVH in {unit})"
+            self._exports.content = f"exported (BVH lengths in {unit}):\n\n" + "\n".join(
                 f"- `{path}`" for path in self.exported)
 
     def _session_time(self, pose: Pose) -> float:
@@ -357,6 +360,7 @@ def run_live(
     no_mag: bool = False,
     lever_arms: Mapping[str, Any] | None = None,
     walking_root: bool = False,
+    bvh_unit: str = "cm",
 ) -> LiveSession:
     """Track ``source`` live and serve the 3-D view at ``session.url``.
 
@@ -373,6 +377,7 @@ def run_live(
     display_hz, height_m, calibrate_at_start, heading, forward_axis, no_mag, lever_arms,
     walking_root : see :class:`Engine`.
     out_dir : where "Stop recording and export" writes (default ``./margtrack_live``).
+    bvh_unit : length unit of the exported BVH, ``"cm"`` or ``"m"``.
     block : serve until Ctrl-C (or ``duration_s``), then stop everything and return the
         stopped session; ``False`` returns the running session at once (call ``stop()``).
     duration_s : with ``block``, stop after this many seconds.
@@ -383,6 +388,8 @@ def run_live(
     record : start a raw recording with the engine (``viewer.raw_recorder``; the caller
         saves it, :func:`margtrack.live.calibration_panel.attach`).
     """
+    if bvh_unit not in BVH_UNITS:
+        raise ValueError(f"bvh_unit must be cm or m, got {bvh_unit!r}")
     policy = AccessPolicy.for_bind(host, token)
     if (message := exposure_warning(host)) is not None:
         warn(message)
@@ -399,6 +406,7 @@ def run_live(
         viewer = LiveViewer(engine, server, out_dir, source=source, new_engine=new_engine)
         source = calibration_panel.attach(viewer, source, record)  # guided calibration panel
         viewer.source, viewer.record_path = source, record  # for Replay again
+        viewer.bvh_unit = bvh_unit
         engine.start(source)
     except BaseException:
         server.stop()

@@ -139,11 +139,13 @@ def unique_stem(folder: Path, stem: str, suffixes: Sequence[str]) -> str:
 
 
 def export_recording(recording: Any, folder: str | Path, stem: str | None = None,
-                     person: int = 0) -> list[Path]:
+                     person: int = 0, bvh_unit: str = "cm") -> list[Path]:
     """BVH, joint-angle CSV and OpenSim ``.sto`` of one person of a live recording.
 
     ``recording`` is what ``Engine.stop_recording()`` returns (``segment_orientations``,
-    ``write_bvh``, ``write_joint_angles_csv``, ``t_s``, ``avatars``). Files are new (a
+    ``write_bvh``, ``write_joint_angles_csv``, ``t_s``, ``avatars``). The BVH's root walks
+    as the live view's did (``root_m``), its lengths in ``bvh_unit`` (cm or m, as
+    ``margtrack body --bvh-unit``). Files are new (a
     numbered stem instead of overwriting), each written to a temporary file in ``folder``
     and renamed into place. Returns the absolute paths written.
     """
@@ -156,7 +158,7 @@ def export_recording(recording: Any, folder: str | Path, stem: str | None = None
     paths = [out / f"{stem}{s}" for s in suffixes]
     q_segment = recording.segment_orientations(person)  # raises ValueError without a body
     with atomic_output(paths[0]) as tmp:
-        recording.write_bvh(tmp, person)
+        recording.write_bvh(tmp, person, bvh_unit)
     with atomic_output(paths[1]) as tmp:
         recording.write_joint_angles_csv(tmp, person)
     with atomic_output(paths[2]) as tmp:

@@ -208,12 +208,13 @@ class LiveRoot:
         self._reset.set()
 
     def batch(self, t_s: Array, gyr_rad_s: Array, q_sensor: Array, offsets: Array | None,
-              count: int) -> None:
+              count: int) -> Array | None:
         """Move the roots over a batch, frame by frame: ``t_s`` (N,) s, every sensor's rate
         (S, N, 3) rad/s and orientation (S, N, 4), under calibration number ``count`` (0:
-        none yet) with its offsets (A, K, 4)."""
+        none yet) with its offsets (A, K, 4). Returns the roots at every frame (N, A, 3) m,
+        or None while they stay at the avatars' places (no calibration yet)."""
         if count == 0 or offsets is None:
-            return
+            return None
         root = self.root
         if count != self._count or self._reset.is_set():
             self._reset.clear()
@@ -223,9 +224,11 @@ class LiveRoot:
         q_seg = quat.multiply(q_sensor[root.avatars.index], offsets[:, :, None, :])
         g = gyr_rad_s[root.contact_sensors]  # (A, 2, N, 3)
         rates = np.sqrt(np.einsum("aknd,aknd->akn", g, g))
+        out = np.empty((t_s.shape[0], *root.position_m.shape))
         for k in range(t_s.shape[0]):
             root.gait.step(t_s[k:k + 1], sag[:, :, k:k + 1])
-            root.update(float(t_s[k]), q_seg[:, :, k], rates[:, :, k])
+            out[k] = root.update(float(t_s[k]), q_seg[:, :, k], rates[:, :, k])
+        return out
 
     def walk(self, pose: Pose) -> Pose:
         """``pose`` with every root where the feet moved it (joints and ends shifted)."""
