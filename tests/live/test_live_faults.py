@@ -406,3 +406,28 @@ def test_a_block_source_whose_clock_goes_back_is_resynchronised_whole():
     assert stats.frames == 100 and stats.late_samples == 0
     assert stats.health.counts["resyncs"].tolist() == [1, 1]
     assert engine.session_time_s == pytest.approx(0.99)  # 0.49 + one period + 0.49
+
+
+class _SlowFirstSource(BaseSource):
+    """A source whose first poll takes 6 s, as the worker's first frames do while numba
+    compiles the kernels on a cold cache (no stop request interrupts either)."""
+
+    def __init__(self) -> None:
+        super().__init__(SourceInfo(_names(2), RATE_HZ, True, "slow first poll"))
+        self.polls = 0
+
+    def poll(self, timeout_s):
+        self.polls += 1
+        if self.polls == 1:
+            time.sleep(6.0)
+        return []
+
+
+def test_a_stop_before_the_first_pose_waits_for_the_worker_beyond_the_usual_5_s():
+    engine = Engine(SourceInfo(_names(2), RATE_HZ, True), "bachmann", avatars=None)
+    engine.start(_SlowFirstSource())
+    time.sleep(0.2)
+    t0 = time.perf_counter()
+    engine.stop()  # no RuntimeError: "the engine's worker did not stop within 5.0 s"
+    assert 5.0 < time.perf_counter() - t0 < 10.0
+    assert not engine.running and engine.latest is None and engine.error is None

@@ -33,7 +33,12 @@ from margtrack.live.worker import Worker
 if TYPE_CHECKING:
     from typing import Self
 
-__all__ = ["EngineThread"]
+__all__ = ["FIRST_POSE_TIMEOUT_S", "EngineThread"]
+
+#: how long a stop waits for a worker that has not made its first pose yet, s: compiling
+#: every kernel of a method and the body model on a cold cache takes up to a few minutes
+#: on a slow machine
+FIRST_POSE_TIMEOUT_S = 600.0
 
 
 class EngineThread:
@@ -121,7 +126,13 @@ class EngineThread:
         return self._worker.wait(timeout_s)
 
     def stop(self, timeout_s: float = 5.0) -> None:
-        """Stop the worker, close the source and join the thread (idempotent)."""
+        """Stop the worker, close the source and join the thread (idempotent).
+
+        Before the first pose the worker may be inside numba compiling the kernels (a cold
+        cache: tens of seconds, which no stop request interrupts): then it is given up to
+        :data:`FIRST_POSE_TIMEOUT_S`."""
+        if self._latest is None:
+            timeout_s = max(timeout_s, FIRST_POSE_TIMEOUT_S)
         self._worker.stop(timeout_s)
 
     def __enter__(self) -> Self:
