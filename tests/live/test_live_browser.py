@@ -64,7 +64,7 @@ def test_live_view_connects_renders_the_avatar_and_retunes_the_filter(tmp_path):
     pytest.importorskip("viser", reason="the live view needs viser (pip install viser)")
     import matplotlib.image
 
-    from margtrack.live.viewer import run_live
+    from margtrack.live.viewer_session import run_live
 
     source = SimulatorSource(PeopleSimulation(seed=1), speed=1.0)
     # token=True: the page needs its token even on loopback, so the real client's page load
@@ -172,7 +172,7 @@ def test_replay_end_notice_then_replay_again_restarts_session_time(tmp_path):
     pytest.importorskip("viser", reason="the live view needs viser (pip install viser)")
     from margtrack.body.skeleton import SEGMENT_NAMES
     from margtrack.live.replay import ReplaySource
-    from margtrack.live.viewer import run_live
+    from margtrack.live.viewer_session import run_live
 
     n, s = 400, len(SEGMENT_NAMES)  # 4 s at 100 Hz of 15 still sensors
     t = 1000.0 + 0.01 * np.arange(n)  # a device clock far from 0
@@ -213,7 +213,7 @@ def test_no_mag_page_lists_the_joints_and_the_avatar_walks_until_reset(tmp_path)
     sync_api = pytest.importorskip("playwright.sync_api",
                                    reason="the playwright package is not installed")
     pytest.importorskip("viser", reason="the live view needs viser (pip install viser)")
-    from margtrack.live.viewer import run_live
+    from margtrack.live.viewer_session import run_live
 
     people = PeopleSimulation(preset="lower", seed=3)
     source = SimulatorSource(people, speed=3.0)

@@ -91,7 +91,7 @@ def test_cm_and_m_files_differ_by_the_unit_and_a_fixed_root_stays(walk, tmp_path
 
 def test_the_page_exports_the_walking_root_in_the_chosen_unit(tmp_path) -> None:
     pytest.importorskip("viser", reason="the live page needs viser (pip install viser)")
-    from margtrack.live.viewer import run_live
+    from margtrack.live.viewer_session import run_live
 
     chunks = list(iter_chunks(SimulatorSource(SIM, speed=math.inf, duration_s=12.0)))
     t = np.concatenate([c.t_s for c in chunks])

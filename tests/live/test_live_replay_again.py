@@ -84,7 +84,7 @@ def _wait(condition, timeout_s: float, what: str) -> None:
 
 def test_replay_again_carries_the_calibrations_and_the_raw_recorder(tmp_path):
     pytest.importorskip("viser", reason="the live page needs viser (pip install viser)")
-    from margtrack.live.viewer import run_live
+    from margtrack.live.viewer_session import run_live
 
     source = CalibratedSource(_replay(), {1: _bias_calibration()})
     record = tmp_path / "raw.hdf5"

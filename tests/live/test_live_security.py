@@ -148,7 +148,7 @@ def test_non_loopback_bind_gets_a_token_and_a_warning():
 def test_run_live_on_every_interface_warns_and_needs_the_token():
     """0.0.0.0 is bound for a moment only: the requests go to 127.0.0.1, then it stops."""
     from margtrack.live.simulator import PeopleSimulation, SimulatorSource
-    from margtrack.live.viewer import run_live
+    from margtrack.live.viewer_session import run_live
 
     warnings: list[str] = []
     source = SimulatorSource(PeopleSimulation(preset="left_arm", motion="wave"), speed=1.0)

@@ -163,7 +163,7 @@ def test_the_page_says_when_the_engine_stops_on_an_error():
     import time
 
     from margtrack.live.protocol import BaseSource, Chunk, SourceInfo
-    from margtrack.live.viewer import run_live
+    from margtrack.live.viewer_session import run_live
 
     class FailingSource(BaseSource):
         def __init__(self) -> None:

@@ -282,7 +282,7 @@ def live_command(
                   no_mag=no_mag, lever_arms=arms, walking_root=walking_root)
         return
     from margtrack.live.avatars import Avatars
-    from margtrack.live.viewer import run_live
+    from margtrack.live.viewer_session import run_live
 
     has_body = Avatars.from_names(source.info.sensor_names) is not None
     err = Console(stderr=True)

@@ -17,8 +17,8 @@
   (:mod:`.calibrations`), recording (:mod:`.orientation_log`, :class:`LiveRecording`;
   raw: :class:`RawRecorder`), and :class:`EngineStats` / :class:`SensorHealth`
   (:mod:`.stats`): processing time, latency, losses, sensor health.
-- :func:`run_live` (:mod:`.viewer`, needs ``viser``): the browser view; :mod:`.cli` holds
-  the ``margtrack live`` command.
+- :func:`run_live` (:mod:`.viewer_session`, the page in :mod:`.viewer`, needs ``viser``): the
+  browser view; :mod:`.cli` holds the ``margtrack live`` command.
 
 Names are imported lazily, so ``import margtrack.live`` loads neither viser, pyserial nor
 pylsl.
@@ -58,7 +58,7 @@ _WHERE = {
     "parse_line": "lines",
     "replay_path": "replay",
     "replay_recordings": "replay",
-    "run_live": "viewer",
+    "run_live": "viewer_session",
     "send_lines": "udp",
     "send_osc": "osc",
 }
