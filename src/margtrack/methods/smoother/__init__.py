@@ -135,20 +135,15 @@ class Smoother(RobustOffline):
         bias = np.empty((n_sensors, n, 3))
         bias_var = np.empty((n_sensors, n, 3))
         for s in range(n_sensors):
-            flags = fwd.flags[s].astype(np.int64)
+            flags = fwd.flags[s]
             restart = (flags & _RESTART) != 0
             restart[1:] |= dt <= 0
-            use_gyr = ((flags & _NO_GYR) == 0) & np.all(np.isfinite(x.gyr[s]), axis=1)
-            use_acc = ((flags & _NO_ACC) == 0) & np.all(np.isfinite(x.acc[s]), axis=1)
-            if x.mag is None:
-                use_mag = np.zeros(n, dtype=bool)
-                mag_s = np.zeros((n, 3))
-            else:
-                # a magnet carried by the sensor: robust's accepted hard-iron offset off
-                offset = fwd.outputs["mag_offset_ut"][s]
-                mag_s = x.mag[s] - np.where(np.isfinite(offset), offset, 0.0)
-                use_mag = ((flags & _NO_MAG) == 0) & np.all(np.isfinite(mag_s), axis=1)
-            at_rest = (flags & int(Flag.REST)) != 0
+            use_gyr, use_acc, use_mag, at_rest = (np.empty(n, dtype=np.bool_) for _ in range(4))
+            mag_s = np.empty((n, 3))
+            # a magnet carried by the sensor: robust's accepted hard-iron offset comes off
+            kernel.measurements(flags, x.gyr[s], x.acc[s], None if x.mag is None else x.mag[s],
+                                fwd.outputs["mag_offset_ut"][s], _NO_GYR, _NO_ACC, _NO_MAG,
+                                int(Flag.REST), use_gyr, use_acc, use_mag, at_rest, mag_s)
             q_start = _start_orientations(
                 x.t, x.gyr[s], use_gyr, restart, (flags & int(Flag.INITIALISING)) != 0,
                 fwd.quat[s], fwd.outputs["gyr_bias_rad_s"][s])
@@ -214,8 +209,8 @@ class _Store:
 
     def __init__(self, n: int) -> None:
         self.q_f, self.b_f = np.empty((n, 4)), np.empty((n, 3))
-        self.q_p, self.b_p = np.empty((n, 4)), np.empty((n, 3))
-        self.p_f = np.empty((n, 6, 6))
+        self.q_p = np.empty((n, 4))
+        self.p_f = np.empty((n, 21))  # the filtered covariance's upper triangle
 
     def forward_arrays(self) -> tuple[Array, ...]:
-        return self.q_f, self.b_f, self.q_p, self.b_p, self.p_f
+        return self.q_f, self.b_f, self.q_p, self.p_f

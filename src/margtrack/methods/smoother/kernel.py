@@ -178,12 +178,57 @@ def _solve_spd(p, m, out, low, y):
 
 
 @njit(cache=True)
+def _pack(p, out):
+    """The upper triangle of the symmetric (6, 6) ``p``, row by row, into ``out`` (21,)."""
+    i = 0
+    for a in range(6):
+        for c in range(a, 6):
+            out[i] = p[a, c]
+            i += 1
+
+
+@njit(cache=True)
+def _unpack(packed, p):
+    """:func:`_pack`'s inverse: the symmetric (6, 6) ``p`` from its 21 values."""
+    i = 0
+    for a in range(6):
+        for c in range(a, 6):
+            p[a, c] = packed[i]
+            p[c, a] = packed[i]
+            i += 1
+
+
+@njit(cache=True)
+def measurements(flags, gyr, acc, mag, mag_offset, no_gyr, no_acc, no_mag, rest, use_gyr,
+                 use_acc, use_mag, at_rest, mag_out):
+    """One pass over a sensor's (N,) samples: which measurements the filter uses (a flag in
+    ``no_*`` or a non-finite value: not that one), ``at_rest`` (a ``rest`` flag), and the
+    field with the accepted hard-iron offset ``mag_offset`` (N, 3; nan: none) taken off,
+    into ``mag_out``. ``mag`` None: no field."""
+    for k in range(flags.shape[0]):
+        f = flags[k]
+        use_gyr[k] = (f & no_gyr) == 0 and math.isfinite(gyr[k, 0] + gyr[k, 1] + gyr[k, 2])
+        use_acc[k] = (f & no_acc) == 0 and math.isfinite(acc[k, 0] + acc[k, 1] + acc[k, 2])
+        at_rest[k] = (f & rest) != 0
+        ok = mag is not None and (f & no_mag) == 0
+        for a in range(3):
+            if mag is None:
+                mag_out[k, a] = 0.0
+            else:
+                o = mag_offset[k, a]
+                mag_out[k, a] = mag[k, a] - o if math.isfinite(o) else mag[k, a]
+                ok = ok and math.isfinite(mag_out[k, a])
+        use_mag[k] = ok
+
+
+@njit(cache=True)
 def forward(t, gyr, acc, mag, use_gyr, use_acc, use_mag, at_rest, restart, q_start, b0, coefs,
-            q_f, b_f, q_p, b_p, p_f):
-    """The filter over one sensor's (N,) samples; fills the filtered (``q_f``, ``b_f``,
-    ``p_f``) and predicted (``q_p``, ``b_p``) states, (N, 4), (N, 3), (N, 6, 6). The
-    predicted covariance is not kept: :func:`backward` recomputes it from ``p_f`` (the
-    same call on the same numbers, so the same bits), half the memory."""
+            q_f, b_f, q_p, p_f):
+    """The filter over one sensor's (N,) samples; fills the filtered states ``q_f`` (N, 4),
+    ``b_f`` (N, 3), ``p_f`` (N, 21: the covariance's upper triangle, :func:`_pack`) and
+    the predicted orientation ``q_p`` (N, 4). The predicted bias is the last filtered one
+    and the predicted covariance is not kept: :func:`backward` recomputes it from ``p_f``
+    (the same call on the same numbers, so the same bits)."""
     n = t.size
     q_angle, q_bias, q_rest = coefs[C_Q_ANGLE], coefs[C_Q_BIAS], coefs[C_Q_REST]
     r_acc, r_mag, r_rest = coefs[C_R_ACC], coefs[C_R_MAG], coefs[C_R_REST]
@@ -225,7 +270,6 @@ def forward(t, gyr, acc, mag, use_gyr, use_acc, use_mag, at_rest, restart, q_sta
                 s, c = math.sin(0.5 * angle) / angle, math.cos(0.5 * angle)
             q[0], q[1], q[2], q[3] = mul(q[0], q[1], q[2], q[3], c, s * wx, s * wy, s * wz)
         q_p[k] = q
-        b_p[k] = b
         _rotation(q, r)
         dx[:] = 0.0
         if use_acc[k]:
@@ -255,11 +299,11 @@ def forward(t, gyr, acc, mag, use_gyr, use_acc, use_mag, at_rest, restart, q_sta
             b[a] += dx[3 + a]
         q_f[k] = q
         b_f[k] = b
-        p_f[k] = p
+        _pack(p, p_f[k])
 
 
 @njit(cache=True)
-def backward(t, restart, at_rest, coefs, q_f, b_f, q_p, b_p, p_f, q_s, b_s, bias_var_s):
+def backward(t, restart, at_rest, coefs, q_f, b_f, q_p, p_f, q_s, b_s, bias_var_s):
     """The Rauch-Tung-Striebel pass over :func:`forward`'s states: the smoothed
     orientation ``q_s`` (N, 4), bias ``b_s`` (N, 3) and its variance (N, 3)."""
     n = t.size
@@ -271,7 +315,9 @@ def backward(t, restart, at_rest, coefs, q_f, b_f, q_p, b_p, p_f, q_s, b_s, bias
     gain = np.empty((6, 6))
     e_next = np.empty(6)
     e = np.empty(3)
-    p_s = p_f[n - 1].copy()
+    pf = np.empty((6, 6))  # P_f(k), unpacked
+    p_s = np.empty((6, 6))
+    _unpack(p_f[n - 1], p_s)
     diff = np.empty((6, 6))
     tmp = np.empty((6, 6))
     low = np.zeros((6, 6))
@@ -284,28 +330,29 @@ def backward(t, restart, at_rest, coefs, q_f, b_f, q_p, b_p, p_f, q_s, b_s, bias
         if restart[k + 1]:
             q_s[k] = q_f[k]
             b_s[k] = b_f[k]
-            p_s[:, :] = p_f[k]
+            _unpack(p_f[k], p_s)
             for a in range(3):
                 bias_var_s[k, a] = p_s[3 + a, 3 + a]
             continue
         dt = t[k + 1] - t[k]
         _rotation(q_f[k], r)
         q_theta = q_rest if at_rest[k + 1] else q_angle
-        _predict_cov(p_f[k], r, dt, q_theta, q_bias, p_pred, scratch)
+        _unpack(p_f[k], pf)
+        _predict_cov(pf, r, dt, q_theta, q_bias, p_pred, scratch)
         # m = P_f(k) Fᵀ, F = [[I, -dt R], [0, I]]: Fᵀ = [[I, 0], [-dt Rᵀ, I]]
         for a in range(6):
             for c in range(3):
-                v = p_f[k, a, c]
+                v = pf[a, c]
                 for j in range(3):
-                    v -= dt * p_f[k, a, 3 + j] * r[c, j]
+                    v -= dt * pf[a, 3 + j] * r[c, j]
                 m[a, c] = v
-                m[a, 3 + c] = p_f[k, a, 3 + c]
+                m[a, 3 + c] = pf[a, 3 + c]
         _solve_spd(p_pred, m, gain, low, y)
         # the smoothed error at k + 1 against its predicted nominal state
         _left_log(q_s[k + 1], q_p[k + 1], e)
         for a in range(3):
             e_next[a] = e[a]
-            e_next[3 + a] = b_s[k + 1, a] - b_p[k + 1, a]
+            e_next[3 + a] = b_s[k + 1, a] - b_f[k, a]  # the bias predicted at k + 1
         ex = ey = ez = 0.0
         for c in range(6):
             ex += gain[0, c] * e_next[c]
@@ -329,7 +376,7 @@ def backward(t, restart, at_rest, coefs, q_f, b_f, q_p, b_p, p_f, q_s, b_s, bias
                 tmp[a, c] = v
         for a in range(6):
             for c in range(a, 6):
-                v = p_f[k, a, c]
+                v = pf[a, c]
                 for j in range(6):
                     v += tmp[a, j] * gain[c, j]
                 p_s[a, c] = v
