@@ -41,8 +41,11 @@ method's state is not touched and starts at the window's orientation at its last
 that sample stepped with the window's mean measurements (:func:`measured`), then converges
 with its restart gain.
 
-The window's slots live in the contract's row (``skeleton.K_WINDOW``); every function
-here is in strided form (slot j at ``st[o + (k + j) * lanes]``, ``k`` the window's first
+The window's slots live in the contract's row (``skeleton.K_WINDOW``). :func:`add`,
+:func:`orientation`, :func:`measured` and a method's view of the field are called, not
+inlined, by the entry points (only a restarting sample reaches them; inlined into every
+method's two entry points they doubled the compile time). Every function here is in
+strided form (slot j at ``st[o + (k + j) * lanes]``, ``k`` the window's first
 slot), so the per-sensor skeleton (``(row, 0, 1)``) and the lockstep blocks' scalar pass
 (``(st, lane, LANES)``) share the same arithmetic: bit for bit the same results. Nothing
 here runs on a sample that does not restart: the steady step is untouched.
@@ -94,7 +97,7 @@ DIP_TOL_DEG = 20.0
 HEADING_CARRIED = 512  # margtrack.estimator.flags.Flag.HEADING_CARRIED
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False)
 def no_own_field(st, o, lanes):
     """A method's view of the field for a restart's window, for a method without one: no
     offset to take off, the screening's reference (``window_field_at`` below)."""
@@ -134,7 +137,7 @@ def pending(st, o, lanes, k):
     return st[o + (k + W_PENDING) * lanes] != 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False)
 def add(st, o, lanes, k, k_ref, scoef, own_n, own_d, dt, f, g0, g1, g2, a0, a1, a2, m0, m1,
         m2):
     """One screened sample (rad/s, m/s², field; zero vectors: none) into the window;
@@ -212,7 +215,7 @@ def quiet(st, o, lanes, k):
     return n_acc > 0.0 and 2.0 * n_acc >= st[o + (k + W_N_ALL) * lanes]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False)
 def orientation(st, o, lanes, k, k_q, k_ref, scoef, own_n, own_d, c_ned, has_mag, done):
     """The window's orientation at its last sample: (heading carried, w, x, y, z).
 
@@ -256,7 +259,7 @@ def orientation(st, o, lanes, k, k_q, k_ref, scoef, own_n, own_d, c_ned, has_mag
     return not clean, w, x, y, z
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False)
 def measured(st, o, lanes, k, held):
     """The restart is made: the window's mean acceleration (m/s²) and mean field (zero
     when ``held``: the heading was carried) in the current body frame, the measurements

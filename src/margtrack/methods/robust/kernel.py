@@ -69,7 +69,7 @@ def _sensor_at(st, o, lanes, coef):
     hard_iron.fresh_at(st, o, lanes)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False)
 def _window_field_at(st, o, lanes):
     """The field as robust reads it, for a restart's window (``estimator/restart_kernel.py``):
     (offset (3), reference norm, dip rad). With a hard-iron offset accepted, the offset
