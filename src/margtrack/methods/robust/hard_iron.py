@@ -63,6 +63,7 @@ from __future__ import annotations
 import math
 
 from margtrack.estimator.jit import njit, select
+from margtrack.estimator.linalg_kernel import sym3_adjugate
 from margtrack.methods.robust.layout import *  # noqa: F403 (the layout)
 
 COND = 0.02
@@ -128,13 +129,7 @@ def accumulate_at(st, o, lanes, coef, dt, m0, m1, m2, usable, steady):
 @njit(cache=True, inline="always")
 def _solve_sym(c00, c01, c02, c11, c12, c22, d0, d1, d2):
     """C⁻¹ d for symmetric C (by its adjugate) and det C; (0, 0, 0) when det C <= 0."""
-    a00 = c11 * c22 - c12 * c12
-    a01 = c02 * c12 - c01 * c22
-    a02 = c01 * c12 - c02 * c11
-    a11 = c00 * c22 - c02 * c02
-    a12 = c01 * c02 - c00 * c12
-    a22 = c00 * c11 - c01 * c01
-    det = c00 * a00 + c01 * a01 + c02 * a02
+    a00, a01, a02, a11, a12, a22, det = sym3_adjugate(c00, c01, c02, c11, c12, c22)
     if not det > 0.0:
         return 0.0, 0.0, 0.0, det
     return ((a00 * d0 + a01 * d1 + a02 * d2) / det, (a01 * d0 + a11 * d1 + a12 * d2) / det,
