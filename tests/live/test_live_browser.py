@@ -238,14 +238,18 @@ def test_no_mag_page_lists_the_joints_and_the_avatar_walks_until_reset(tmp_path)
                   "the calibration on the still start")
             start = engine.avatars.root_positions_m[0]
 
-            def moved() -> float:
-                root = engine.latest.root_m if engine.latest is not None else None
-                return math.inf if root is None else float(np.hypot(*(root[0] - start)[:2]))
-
-            _wait(lambda: math.isfinite(moved()) and moved() > 0.5, 15.0,
+            # every published pose's distance from the start: the avatar walks on right
+            # after a reset, so polling only the latest pose could miss its return
+            moved: list[float] = []
+            engine.subscribe(lambda pose: moved.append(
+                math.inf if pose.root_m is None
+                else float(np.hypot(*(pose.root_m[0] - start)[:2]))))
+            _wait(lambda: bool(moved) and math.isfinite(moved[-1]) and moved[-1] > 0.5, 15.0,
                   "the avatar to walk half a metre")
+            clicked = len(moved)
             page.get_by_role("button", name="Reset position").click()
-            _wait(lambda: moved() < 0.3, 5.0, "the avatar back where it started")
+            _wait(lambda: min(moved[clicked:], default=math.inf) < 0.3, 5.0,
+                  "the avatar back where it started")
             browser.close()
     finally:
         session.stop()
