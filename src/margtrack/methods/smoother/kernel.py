@@ -86,15 +86,15 @@ def _left_log(a, b, e):
 def _scalar_update(p, dx, i, sign, z, r):
     """One scalar measurement ``z = sign * e[i] + noise(r)`` into error mean ``dx`` and
     covariance ``p`` (Joseph-free form, symmetrised)."""
-    s = p[i, i] + r
-    innov = (z - sign * dx[i]) / s
+    inv_s = 1.0 / (p[i, i] + r)
+    innov = (z - sign * dx[i]) * inv_s
     for a in range(6):
         dx[a] += sign * p[a, i] * innov
     # P ← P - P hᵀ h P / s, h = sign e_i: the column p[:, i] taken before it changes
     c0, c1, c2, c3, c4, c5 = p[0, i], p[1, i], p[2, i], p[3, i], p[4, i], p[5, i]
     col = (c0, c1, c2, c3, c4, c5)
     for a in range(6):
-        ka = col[a] / s
+        ka = col[a] * inv_s
         for b in range(a, 6):
             v = p[a, b] - ka * col[b]
             p[a, b] = v
@@ -151,30 +151,31 @@ def _predict_cov(p_f, r, dt, q_angle, q_bias, p_p, scratch):
 @njit(cache=True)
 def _solve_spd(p, m, out, low, y):
     """``out`` (6, 6) ← ``m p⁻¹`` for symmetric positive definite ``p`` (Cholesky; ``low``
-    (6, 6) and ``y`` (6,) are scratch)."""
+    (6, 6) and ``y`` (6,) are scratch; ``low``'s diagonal holds the reciprocals of the
+    factor's, so the 6 + 72 divisions of the solves are multiplications)."""
     for j in range(6):
         d = p[j, j]
         for c in range(j):
             d -= low[j, c] * low[j, c]
-        d = math.sqrt(max(d, 1e-300))
-        low[j, j] = d
+        inv_d = 1.0 / math.sqrt(max(d, 1e-300))
+        low[j, j] = inv_d
         for i in range(j + 1, 6):
             v = p[i, j]
             for c in range(j):
                 v -= low[i, c] * low[j, c]
-            low[i, j] = v / d
+            low[i, j] = v * inv_d
     # rows of out solve out_row p = m_row  <=>  p out_rowᵀ = m_rowᵀ
     for row in range(6):
         for i in range(6):
             v = m[row, i]
             for c in range(i):
                 v -= low[i, c] * y[c]
-            y[i] = v / low[i, i]
+            y[i] = v * low[i, i]
         for i in range(5, -1, -1):
             v = y[i]
             for c in range(i + 1, 6):
                 v -= low[c, i] * out[row, c]
-            out[row, i] = v / low[i, i]
+            out[row, i] = v * low[i, i]
 
 
 @njit(cache=True)
