@@ -46,7 +46,6 @@ def _knee_peaks(output: str, side: str) -> list[float]:
     return [float(v) for v in re.findall(r"(\d+) at [\d.]+ s", line)]
 
 
-@pytest.mark.kernel
 def test_xio_walk_end_to_end(xio_folder: Path, tmp_path: Path) -> None:
     out = tmp_path / "xio"
     result = _invoke(xio_folder, "-o", out)
@@ -79,7 +78,6 @@ def test_xio_walk_end_to_end(xio_folder: Path, tmp_path: Path) -> None:
     assert "faced magnetic north" in forced.output
 
 
-@pytest.mark.kernel
 def test_per_sensor_files_with_a_map(walk, tmp_path: Path) -> None:
     names = {seg: f"imu_{i}" for i, seg in enumerate(walk[1])}
     folder = _files(tmp_path / "rec", walk, names, ".csv")
@@ -107,7 +105,6 @@ def test_per_sensor_files_with_a_map(walk, tmp_path: Path) -> None:
     assert inside.exit_code == 2 and "inside the input" in inside.output
 
 
-@pytest.mark.kernel
 def test_bvh_unit_and_fewer_than_two_gait_cycles(walk, tmp_path: Path) -> None:
     # the simulated walk in place swings its legs sinusoidally: no heel strike and toe off
     # pattern of a real gait, so no cycle; that is a message, and the rest is written
@@ -137,7 +134,6 @@ def test_bvh_unit_and_fewer_than_two_gait_cycles(walk, tmp_path: Path) -> None:
     assert 0.8 < roots["m"][0, 1] < 1.0  # hip height, Y up, in m
 
 
-@pytest.mark.kernel
 def test_live_recording_input(walk, tmp_path: Path) -> None:
     live = pytest.importorskip("margtrack.io.live_hdf5",
                                reason="the live recording format (helper B3) is not present")
@@ -185,7 +181,6 @@ def test_bad_input_is_refused_with_the_fix(walk, tmp_path: Path) -> None:
     assert result.exit_code == 2 and "pelvis.h5 is not a readable HDF5 file" in result.output
 
 
-@pytest.mark.kernel
 def test_units_are_checked_per_sensor(walk, tmp_path: Path) -> None:
     t, signals = walk
     folder = tmp_path / "deg"
@@ -204,7 +199,6 @@ def _table(folder: Path) -> tuple[list[str], np.ndarray]:
             np.loadtxt(path, delimiter=",", skiprows=1))
 
 
-@pytest.mark.kernel
 def test_xio_walk_without_magnetometers(xio_folder: Path, tmp_path: Path) -> None:
     ref = _invoke(xio_folder, "-o", tmp_path / "mag")
     assert ref.exit_code == 0, ref.output
@@ -242,7 +236,6 @@ def test_xio_walk_without_magnetometers(xio_folder: Path, tmp_path: Path) -> Non
             assert np.sqrt(np.mean((angles[:, col] - with_mag[:, col]) ** 2)) < 3.0  # 1.4
 
 
-@pytest.mark.kernel
 def test_no_mag_bad_input_is_refused_with_the_fix(walk, tmp_path: Path) -> None:
     empty = tmp_path / "empty"
     empty.mkdir()

@@ -61,7 +61,6 @@ def test_the_tutorial_has_its_two_sections() -> None:
     assert "margtrack plot out.h5 -o out.png" in phone
 
 
-@pytest.mark.kernel
 def test_phone_csv_section_runs(workdir: Path) -> None:
     from margtrack import io
 
@@ -83,7 +82,6 @@ def test_phone_csv_section_runs(workdir: Path) -> None:
     assert total is not None and float(total.group(1)) < 5.0, outputs[-1]
 
 
-@pytest.mark.kernel
 def test_xio_section_runs(workdir: Path) -> None:
     if not (DATA / "xio_lower_body" / "pelvis" / "Inertial.csv").is_file():
         pytest.skip(f"x-IMU3 lower-body data not found at {DATA} (it lives in ../shared)")

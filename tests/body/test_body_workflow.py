@@ -48,7 +48,6 @@ def _rms_against_truth(sim, result) -> dict[str, np.ndarray]:
             for j in result.angles.names}
 
 
-@pytest.mark.kernel
 def test_simulated_walk_gives_the_commanded_joint_angles(sim, north) -> None:
     # knee flexion swings 59 deg, hip flexion 50 deg: errors are the filter's, < 1.5 deg
     rms = _rms_against_truth(sim, north)
@@ -61,7 +60,6 @@ def test_simulated_walk_gives_the_commanded_joint_angles(sim, north) -> None:
     assert rom[("left_knee", "flexion")] == pytest.approx(54.0, abs=6.0)  # 2 x 27 deg amplitude
 
 
-@pytest.mark.kernel
 def test_pelvis_heading_finds_the_facing_direction(sim, recs, north) -> None:
     result = body.process_body(recs, heading="pelvis", forward_axis=pelvis_forward_axis(sim))
     assert abs(result.calibration.facing_deg) < 3.0  # the simulated person faces north
@@ -74,7 +72,6 @@ def test_pelvis_heading_finds_the_facing_direction(sim, recs, north) -> None:
     assert not any("bend backwards" in n for n in north.notes)
 
 
-@pytest.mark.kernel
 def test_a_map_renames_sensors_and_leaves_others_out(recs, north) -> None:
     renamed = {f"imu_{i}": replace(r, name=f"imu_{i}") for i, r in enumerate(recs.values())}
     mapping = {f"imu_{i}": seg for i, seg in enumerate(recs)}
@@ -118,7 +115,6 @@ def test_read_body_map(tmp_path: Path) -> None:
         body.read_body_map(tmp_path / "missing.toml")
 
 
-@pytest.mark.kernel
 def test_different_rates_and_durations_are_merged_onto_the_overlap(recs, north) -> None:
     mixed = dict(recs)
     shank = recs["left_shank"]
@@ -136,7 +132,6 @@ def test_different_rates_and_durations_are_merged_onto_the_overlap(recs, north) 
     assert np.sqrt(np.mean(diff**2)) < 1.0  # same motion, a coarser rate for one sensor
 
 
-@pytest.mark.kernel
 def test_unsynchronised_clocks_are_refused_with_the_fix(recs) -> None:
     shifted = dict(recs)
     pelvis = recs["pelvis"]
@@ -147,7 +142,6 @@ def test_unsynchronised_clocks_are_refused_with_the_fix(recs) -> None:
     assert aligned.t_s.size == pelvis.n_samples
 
 
-@pytest.mark.kernel
 def test_a_gap_flags_the_interpolated_frames(recs) -> None:
     gapped = dict(recs, right_thigh=without_samples(recs["right_thigh"], 5.0, 5.5))
     result = body.process_body(gapped, heading="north")
@@ -160,7 +154,6 @@ def test_a_gap_flags_the_interpolated_frames(recs) -> None:
     assert result.sensors[col].gap_frames == gap.sum()
 
 
-@pytest.mark.kernel
 def test_dead_magnetometer_is_flagged_and_pelvis_heading_still_works(sim, recs) -> None:
     dead = dict(recs, left_shank=replace(recs["left_shank"],
                                          mag=np.zeros_like(recs["left_shank"].mag)))
@@ -179,7 +172,6 @@ def test_dead_magnetometer_is_flagged_and_pelvis_heading_still_works(sim, recs) 
                                    atol=1e-9)
 
 
-@pytest.mark.kernel
 def test_pose_window_errors_name_the_fix(recs) -> None:
     moving = body.process_body(recs, heading="north", pose_window=(0.2, 1.2))
     assert moving.window == slice(20, 121)  # 0.20 s to 1.20 s inclusive at 100 Hz
@@ -195,7 +187,6 @@ def test_pose_window_errors_name_the_fix(recs) -> None:
         body.process_body(walking, heading="north")
 
 
-@pytest.mark.kernel
 def test_units_method_and_heading_errors(recs) -> None:
     from margtrack.units import UnitError
 
@@ -262,7 +253,6 @@ def test_read_body_errors(tmp_path: Path) -> None:
         body.read_body(tmp_path / "nope")
 
 
-@pytest.mark.kernel
 def test_write_refuses_existing_files_and_is_atomic(north, tmp_path: Path) -> None:
     out = tmp_path / "out"
     paths = north.write(out)
@@ -295,7 +285,6 @@ def test_write_refuses_existing_files_and_is_atomic(north, tmp_path: Path) -> No
     assert not (tmp_path / "c").exists()  # refused before anything is written
 
 
-@pytest.mark.kernel
 def test_opensim_reads_the_sto(north, tmp_path: Path) -> None:
     opensim = pytest.importorskip("opensim", reason="OpenSim (pip install opensim) reads .sto")
     path = north.write(tmp_path / "out")["sto"]
@@ -322,7 +311,6 @@ def test_opensim_reads_the_sto(north, tmp_path: Path) -> None:
     assert angles.max() < 1.0
 
 
-@pytest.mark.kernel
 def test_xio_walk_reproduces_the_device_quaternion_knee_peaks(xio_folder: Path) -> None:
     from margtrack.body.xio import read_xio_orientations
 
@@ -343,7 +331,6 @@ def test_xio_walk_reproduces_the_device_quaternion_knee_peaks(xio_folder: Path) 
     assert result.calibration.spread_deg.max() < 2.0
 
 
-@pytest.mark.kernel
 def test_xio_walk_no_mag_online_range_of_motion_spans_the_walk(xio_folder: Path) -> None:
     """Online --no-mag calibrates on the still end (every joint found only once it moved):
     the range of motion runs from when every joint was found, not from that end."""

@@ -133,7 +133,8 @@ def test_lockstep_equals_sensor_by_sensor_under_faults(name, params, monkeypatch
         _assert_each_alone(name, t, gyr, acc, mag, together, **params)
 
 
-@pytest.mark.kernel
+# (not marked kernel, nor the BROAD test below: threads and real data concern the compiled
+# blocks; without the JIT the faults test above runs the same Python)
 @pytest.mark.parametrize("name", LOCKSTEP)
 def test_lockstep_threads_and_halves_equal_one_run(name, monkeypatch):
     t, gyr, acc, mag = _faulty_sensors()
@@ -161,7 +162,6 @@ def test_lockstep_without_magnetometer_equals_each_sensor_alone(name):
     _assert_each_alone(name, t, gyr, acc, None, together)
 
 
-@pytest.mark.kernel
 @pytest.mark.skipif(not (BROAD.is_dir() and any(BROAD.glob("*.hdf5"))),
                     reason="BROAD trials not in ../shared/data/broad")
 @pytest.mark.parametrize("name", LOCKSTEP)
@@ -202,13 +202,18 @@ def _null_rare_at(st, o, lanes, coef, dt, has_mag, a0, a1, a2, m0, m1, m2):
 
 
 @njit(error_model="numpy", _nrt=False)
+def _null_scalar(st, o, n_row, coef, scoef, dt, has_mag):
+    contract_lanes._scalar(_null_start_at, _null_step_at, _null_hold_at,
+                           restart_kernel.no_own_field, st, o, n_row, coef, scoef, dt, has_mag)
+
+
+@njit(error_model="numpy", _nrt=False)
 def _null_block(st, rows, s0, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
                 flags_out, frame_major, s_in):
     scoef = jit.to_fixed_tuple(coefs, N_SCOEF)
-    contract_lanes.block(_null_start_at, _null_step_at, _null_hold_at, _null_rare_at,
-                         restart_kernel.no_own_field, N_CONTRACT, 0, st, rows, s0, scoef,
-                         scoef, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out,
-                         frame_major, s_in)
+    contract_lanes.block(_null_scalar, _null_step_at, _null_rare_at, N_CONTRACT, 0, st, rows,
+                         s0, scoef, scoef, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out,
+                         flags_out, frame_major, s_in)
 
 
 @pytest.mark.kernel

@@ -190,9 +190,8 @@ def _rows_out(rows, s0, n, n_row, st):
 
 
 @njit(cache=True, inline="always")
-def block(start_at, step_at, hold_at, rare_at, window_field_at, n_row, n_x, st, rows, s0,
-          scoef, coef, dts, ks, tflags, gyr, acc, mag, has, q_out, x_out, flags_out,
-          frame_major, s_in):
+def block(scalar_pass, step_at, rare_at, n_row, n_x, st, rows, s0, scoef, coef, dts, ks, tflags,
+          gyr, acc, mag, has, q_out, x_out, flags_out, frame_major, s_in):
     """Sensors s0 .. s0 + LANES (fewer at the end) through all samples, in lockstep.
 
     The inputs gyr, acc, mag are (S, N, 3) (``s_in`` 0), or with ``frame_major`` (N, S', 3)
@@ -200,6 +199,8 @@ def block(start_at, step_at, hold_at, rare_at, window_field_at, n_row, n_x, st, 
     ``s_in + s``: read where they are, no copy into the per-sensor layout first (the block
     gathers each sample's lanes either way; frame-major, they are next to each other).
 
+    ``scalar_pass(st, lane, n_row, coef, scoef, dt, has_mag)``: :func:`_scalar` with the
+    method's functions, compiled on its own (``skeleton.entry_points``' ``lanes_scalar``).
     ``st`` ((n_row + N_B + n_x) * LANES,) is the block's buffer, as scratch; ``n_row``,
     ``n_x`` the method's row and extra outputs widths (constants). For a kernel compiled
     with ``_nrt=False`` (numba's reference counting, kept otherwise around every array
@@ -244,8 +245,7 @@ def block(start_at, step_at, hold_at, rare_at, window_field_at, n_row, n_x, st, 
                 _step_lane(step_at, st, lane, n_row, coef, dt, has_mag)
         else:  # a lane (re)starts or takes a rare branch: the block's sample in scalar code
             for lane in range(n):
-                _scalar(start_at, step_at, hold_at, window_field_at, st, lane, n_row, coef, scoef,
-                        dt, has_mag)
+                scalar_pass(st, lane, n_row, coef, scoef, dt, has_mag)
         for lane in range(n):
             su, lu = np.uint64(s0 + lane), np.uint64(lane)
             flags_out[su, iu] = int(st[np.uint64(i_f) + lu])
