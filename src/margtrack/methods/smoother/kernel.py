@@ -39,8 +39,8 @@ from margtrack.estimator.quat_kernel import mul
 
 #: coefficient slots
 (C_Q_ANGLE, C_Q_BIAS, C_R_ACC, C_R_MAG, C_R_REST, C_P0_INCL, C_P0_HEAD, C_P0_BIAS, C_UP,
- C_GRAVITY, C_Q_REST) = range(11)
-N_COEF = 11
+ C_GRAVITY, C_Q_REST, C_R_ACC_AT_REST, C_R_MAG_AT_REST) = range(13)
+N_COEF = 13
 
 
 @njit(cache=True)
@@ -233,6 +233,7 @@ def forward(t, gyr, acc, mag, use_gyr, use_acc, use_mag, at_rest, restart, q_sta
     n = t.size
     q_angle, q_bias, q_rest = coefs[C_Q_ANGLE], coefs[C_Q_BIAS], coefs[C_Q_REST]
     r_acc, r_mag, r_rest = coefs[C_R_ACC], coefs[C_R_MAG], coefs[C_R_REST]
+    r_acc_at_rest, r_mag_at_rest = coefs[C_R_ACC_AT_REST], coefs[C_R_MAG_AT_REST]
     g = coefs[C_GRAVITY]  # m/s², the accelerometer's norm at rest
     up_sign = coefs[C_UP]  # +1: up is +z (ENU), -1: up is -z (NED)
     north_x, north_y = (0.0, 1.0) if up_sign > 0 else (1.0, 0.0)
@@ -281,8 +282,9 @@ def forward(t, gyr, acc, mag, use_gyr, use_acc, use_mag, at_rest, restart, q_sta
             vx = r[0, 0] * ax + r[0, 1] * ay + r[0, 2] * az
             vy = r[1, 0] * ax + r[1, 1] * ay + r[1, 2] * az
             # v × up, up = (0, 0, up_sign): (vy up_sign, -vx up_sign, 0)
-            _scalar_update(p, dx, 0, 1.0, vy * up_sign, r_acc)
-            _scalar_update(p, dx, 1, 1.0, -vx * up_sign, r_acc)
+            ra = r_acc_at_rest if at_rest[k] else r_acc
+            _scalar_update(p, dx, 0, 1.0, vy * up_sign, ra)
+            _scalar_update(p, dx, 1, 1.0, -vx * up_sign, ra)
         if use_mag[k]:
             mx, my, mz = mag[k, 0], mag[k, 1], mag[k, 2]
             hx = r[0, 0] * mx + r[0, 1] * my + r[0, 2] * mz
@@ -291,7 +293,8 @@ def forward(t, gyr, acc, mag, use_gyr, use_acc, use_mag, at_rest, restart, q_sta
                 # angle from h to north about up: atan2((h × n) · up, h · n)
                 cross_z = (hx * north_y - hy * north_x) * up_sign
                 angle = math.atan2(cross_z, hx * north_x + hy * north_y)
-                _alone_update(p, dx, 2, up_sign, angle, r_mag)
+                _alone_update(p, dx, 2, up_sign, angle,
+                              r_mag_at_rest if at_rest[k] else r_mag)
         if at_rest[k] and use_gyr[k]:
             for a in range(3):
                 _scalar_update(p, dx, 3 + a, 1.0, gyr[k, a] - b[a], r_rest)
