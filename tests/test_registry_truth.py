@@ -88,8 +88,7 @@ FRAMES = ("ENU", "NED")
 KINDS = ("ideal", "mems")
 NAMES = methods.available()
 
-# the readable twins (NUMBA_DISABLE_JIT=1) must meet the same bounds: about 30 s there
-pytestmark = pytest.mark.kernel
+# the readable twins (NUMBA_DISABLE_JIT=1) must meet the same bounds: the tests marked kernel
 
 
 def _bound(name: str) -> Bound:
@@ -132,6 +131,7 @@ def test_the_bound_table_lists_exactly_the_registered_methods():
         )
 
 
+@pytest.mark.kernel
 @pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("frame", FRAMES)
 @pytest.mark.parametrize("name", NAMES)
@@ -151,6 +151,7 @@ def test_estimate_matches_the_simulator_truth(name, frame, kind):
         )
 
 
+# (not marked kernel: a property of the frames, the kernels' arithmetic is the test above's)
 @pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("name", NAMES)
 def test_enu_and_ned_estimates_are_one_conversion_apart(name, kind):
@@ -164,6 +165,7 @@ def test_enu_and_ned_estimates_are_one_conversion_apart(name, kind):
         assert diff.max() < FRAME_TOL, f"{name} on the {rec_frame} recording: {diff.max():.3g}"
 
 
+@pytest.mark.kernel
 @pytest.mark.parametrize("frame", FRAMES)
 @pytest.mark.parametrize("name", NAMES)
 def test_without_magnetometer_the_inclination_is_kept_or_the_method_refuses(name, frame):
@@ -187,6 +189,7 @@ def test_without_magnetometer_the_inclination_is_kept_or_the_method_refuses(name
     assert np.all(np.abs(np.linalg.norm(out.quat, axis=-1) - 1.0) < NORM_TOL)
 
 
+@pytest.mark.kernel
 @pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("frame", FRAMES)
 @pytest.mark.parametrize("name", NAMES)

@@ -71,7 +71,6 @@ def test_constrained_angles_stay_on_the_truth_where_independent_6d_filters_drift
     assert not free.constrained and not any(x.startswith("constrained") for x in free.summary())
 
 
-@pytest.mark.kernel
 def test_a_given_magnetometer_is_ignored(sim, no_mag) -> None:
     # a magnetometer next to a magnet (a constant offset of 3 field strengths): not used
     disturbed = {k: replace(r, mag=np.tile([150.0, -20.0, 40.0], (r.n_samples, 1)))
