@@ -249,8 +249,9 @@ def _lanes_template(st, rows, coefs, dts, ks, tflags, gyr, acc, mag, has, q_out,
 def _lanes_scalar_template(st, o, n_row, coef, scoef, dt, has_mag):
     """A lane's sample in the lockstep blocks' scalar pass (``contract_lanes._scalar``):
     called, not inlined, by :func:`_lanes_template` (only a block with a lane that
-    (re)starts or takes a rare branch reaches it; inlined, it doubled the blocks' compile
-    time)."""
+    (re)starts or takes a rare branch reaches it; inlined, it was compiled into the
+    blocks' vector code: robust's ``lanes`` took 93 s to compile, now 46 s and 34 s for
+    this)."""
     contract_lanes._scalar(_start_at, _step_at, _hold_at, _window_field_at,  # noqa: F821
                            st, o, n_row, coef, scoef, dt, has_mag)
 
