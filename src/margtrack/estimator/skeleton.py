@@ -250,8 +250,7 @@ def _lanes_scalar_template(st, o, n_row, coef, scoef, dt, has_mag):
     """A lane's sample in the lockstep blocks' scalar pass (``contract_lanes._scalar``):
     called, not inlined, by :func:`_lanes_template` (only a block with a lane that
     (re)starts or takes a rare branch reaches it; inlined, it was compiled into the
-    blocks' vector code: robust's ``lanes`` took 93 s to compile, now 46 s and 34 s for
-    this)."""
+    blocks' vector code, and ``lanes`` took twice as long to compile: docs/speed.md)."""
     contract_lanes._scalar(_start_at, _step_at, _hold_at, _window_field_at,  # noqa: F821
                            st, o, n_row, coef, scoef, dt, has_mag)
 
@@ -297,8 +296,7 @@ def entry_points(module_name):
     division), with LLVM's vectoriser forced to the module's ``LANES_VECTOR_WIDTH`` lanes
     if it sets one (``jit.force_vector_width``). The blocks' scalar pass (a lane that
     (re)starts or takes a rare branch) is a function of its own, ``lanes_scalar``, called
-    by ``lanes``: inlined, it made ``lanes`` take twice as long to compile (robust 93 s
-    against 46 + 34 s).
+    by ``lanes`` (inlined, it made ``lanes`` take twice as long to compile).
     """
     import sys
 

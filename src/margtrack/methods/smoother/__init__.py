@@ -19,9 +19,9 @@ low-pass of time constant ``τ = sqrt(r dt / q_θ)`` (the steady-state Kalman-Bu
 ``r_acc = tau_acc_s² q_θ / dt`` and ``r_mag = tau_mag_s² q_θ / dt``. At rest (``robust``'s
 ``REST``) the orientation walks with the gyro's white noise only
 (``gyr_noise_deg_s_sqrt_hz``) and both variances scale with it, the time constants staying
-the same (with the motion's variances at rest, the field's heading there took a time
-constant fifty times longer, and the heading of a rest came from the motion around it:
-BROAD 1.94 -> 1.82 deg, slow rotation with breaks 1.17 -> 0.60); the bias walks with
+the same (with the motion's variances at rest, the field's heading there would take a
+time constant fifty times longer, and a rest its heading from the motion around it:
+docs/methods.md); the bias walks with
 ``bias_walk_deg_s_sqrt_s``; at rest each gyro sample measures the bias with the variance of
 ``bias_rest_noise_deg_s`` over ``rest_tau_s`` (``σ² rest_tau_s / dt``).
 
