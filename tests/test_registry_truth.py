@@ -87,8 +87,8 @@ RATE_HZ = 100.0
 FRAMES = ("ENU", "NED")
 KINDS = ("ideal", "mems")
 NAMES = methods.available()
-
-# the readable twins (NUMBA_DISABLE_JIT=1) must meet the same bounds: the tests marked kernel
+# (the tests marked kernel run again with NUMBA_DISABLE_JIT=1: the readable twins must meet
+# the same bounds)
 
 
 def _bound(name: str) -> Bound:
