@@ -26,7 +26,7 @@ def _sensors(n_sensors: int = 5, duration_s: float = 3.0):
     return recs[0].t, gyr, acc, mag
 
 
-@pytest.mark.kernel
+# (not marked kernel: threads concern the compiled kernels, which release the GIL)
 @pytest.mark.parametrize(("name", "threaded"), [(m, t) for m in COMPILED for t in (False, True)])
 def test_threads_over_sensors_equal_each_sensor_alone(name, threaded, monkeypatch):
     parts = []

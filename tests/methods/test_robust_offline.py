@@ -13,8 +13,6 @@ from margtrack.estimator import Flag
 from margtrack.methods.robust import Robust
 from margtrack.methods.robust_offline import RobustOffline, _since_start
 
-pytestmark = pytest.mark.kernel
-
 BIAS_RAD_S = np.radians([0.4, -0.25, 0.3])
 
 
@@ -26,6 +24,7 @@ def _static_with_bias(seconds: float = 20.0):
     )
 
 
+@pytest.mark.kernel
 def test_registered_and_update_refused_with_the_reason():
     est = methods.create("robust-offline", rate_hz=100.0)
     assert isinstance(est, RobustOffline)
@@ -33,6 +32,7 @@ def test_registered_and_update_refused_with_the_reason():
         est.update(np.zeros(3), np.array([0.0, 0.0, 9.81]), np.array([0.0, 20.0, -40.0]))
 
 
+@pytest.mark.kernel
 def test_a_second_run_without_reset_is_refused_not_smoothed_piecewise():
     rec = _static_with_bias(5.0)
     est = RobustOffline()
@@ -44,6 +44,7 @@ def test_a_second_run_without_reset_is_refused_not_smoothed_piecewise():
     assert np.array_equal(first.quat, again.quat)
 
 
+@pytest.mark.kernel
 def test_the_backward_pass_gives_the_bias_from_the_first_sample():
     # at rest with a constant bias: the causal filter starts from bias 0 and learns it
     # after rest_min_s; the smoother knows it at sample 0 from the backward pass
@@ -62,6 +63,7 @@ def test_the_backward_pass_gives_the_bias_from_the_first_sample():
     assert e_off.max() < 0.1 < e_fwd.max()
 
 
+@pytest.mark.kernel
 def test_it_is_acausal_where_robust_is_causal():
     traj = sim.random_motion(30.0, 100.0, seed=5, max_rate_deg_s=120.0, bandwidth_hz=0.5)
     rec = sim.simulate(traj, gyr_errors=sim.SensorErrors(bias=np.radians([0.3, 0.2, -0.2])),
@@ -75,6 +77,7 @@ def test_it_is_acausal_where_robust_is_causal():
         assert (moved < 1e-9) if causal else (moved > 1e-3), (cls.name, moved)
 
 
+@pytest.mark.kernel
 def test_simulated_motion_in_both_frames_is_as_good_as_the_causal_filter():
     traj = sim.random_motion(60.0, 100.0, seed=4, max_rate_deg_s=150.0, bandwidth_hz=1.0)
     for frame in ("ENU", "NED"):
@@ -89,6 +92,7 @@ def test_simulated_motion_in_both_frames_is_as_good_as_the_causal_filter():
         assert np.allclose(np.linalg.norm(off.quat, axis=-1), 1.0)
 
 
+@pytest.mark.kernel
 def test_two_sensors_at_once_equal_each_alone():
     recs = [_static_with_bias(10.0), sim.simulate(sim.static(10.0, 100.0), seed=7)]
     both = RobustOffline().run(recs)
@@ -99,6 +103,7 @@ def test_two_sensors_at_once_equal_each_alone():
                            atol=1e-15)
 
 
+@pytest.mark.kernel
 def test_bad_samples_are_flagged_skipped_and_the_output_stays_aligned():
     rec = _static_with_bias(10.0)
     gyr, t = rec.gyr.copy(), rec.t.copy()
@@ -120,6 +125,7 @@ def test_bad_samples_are_flagged_skipped_and_the_output_stays_aligned():
         RobustOffline().run(gyr=rec.gyr, acc=rec.acc / 9.80665, mag=rec.mag, t=rec.t)
 
 
+@pytest.mark.kernel
 def test_since_start_counts_from_each_start_and_restart():
     t = np.arange(8) * 0.5
     init, gap = int(Flag.INITIALISING), int(Flag.GAP)
@@ -129,6 +135,8 @@ def test_since_start_counts_from_each_start_and_restart():
     assert np.allclose(since[2:], [0.0, 0.5, 0.0, 0.5, 1.0, 1.5])
 
 
+# (not marked kernel: an accuracy figure on real data, the kernels' arithmetic is the
+# tests' above)
 def test_on_a_broad_trial_it_beats_robust_and_offline_vqf(broad_folder):
     from margtrack.io import read_broad
 
@@ -145,6 +153,7 @@ def test_on_a_broad_trial_it_beats_robust_and_offline_vqf(broad_folder):
     assert np.isfinite(peer.total_rmse_deg) and peer.n_scored == off.n_scored
 
 
+@pytest.mark.kernel
 def test_the_live_engine_refuses_it_before_the_first_sample():
     from margtrack.live.engine import Engine
     from margtrack.live.replay import ReplaySource
@@ -155,6 +164,7 @@ def test_the_live_engine_refuses_it_before_the_first_sample():
         Engine(source.info, "robust-offline")
 
 
+@pytest.mark.kernel
 def test_the_offline_vqf_adapter_returns_enu_orientations_and_is_acausal():
     pytest.importorskip("vqf", reason="offline VQF is the peer (pip install vqf)")
     from margtrack.bench.external import EXTERNAL
