@@ -1,6 +1,6 @@
 """How well each method recovers from a gap in the middle of the movement, on BROAD.
 
-Run ``python benchmarks/gap_recovery.py [--methods robust bachmann ...] [--gap-s 2]
+Run ``python benchmarks/gap_recovery.py [--methods robust smoother ...] [--gap-s 2]
 [--folder ../shared/data/broad] [--truth-window]``.
 
 For every BROAD trial: the middle of its ``movement`` mask (the median of the movement
@@ -60,7 +60,7 @@ def truth_window_tilt_deg(cut: Recording, window_s: float) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--methods", nargs="+", default=["robust"])
+    parser.add_argument("--methods", nargs="+", default=["robust", "smoother"])
     parser.add_argument("--gap-s", type=float, default=2.0)
     parser.add_argument("--folder", type=Path, default=DEFAULT_FOLDER)
     parser.add_argument("--truth-window", action="store_true",

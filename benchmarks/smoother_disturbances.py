@@ -7,7 +7,7 @@ presets, ENU, one seed per repetition, with one disturbance at a time at several
 strengths: linear acceleration (translation of peak amplitude 0.02-0.5 m in the same
 band: up to several g at 0.5 m), a magnet passing (a 10 s Hann bump of 20-200 µT along
 east, a 50 µT earth field), and a gyro bias of 0.5-2 deg/s. Printed per case: total
-RMSE (deg) of ``robust``, ``robust-offline``, ``smoother`` and, when vqf is installed,
+RMSE (deg) of ``robust``, ``smoother`` and, when vqf is installed,
 VQF and offline VQF, mean over the seeds.
 """
 
@@ -21,7 +21,7 @@ import numpy as np
 from margtrack import registry, sim
 from margtrack.bench.runner import Adapter, score
 
-METHODS = ("robust", "robust-offline", "smoother")
+METHODS = ("robust", "smoother")
 
 
 def _cases(seed: int):

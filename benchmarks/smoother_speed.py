@@ -1,4 +1,4 @@
-"""Speed of the smoother (``smoother``) on one stream, next to offline VQF and ``robust-offline``.
+"""Speed of the smoother (``smoother``) on one stream, next to offline VQF.
 
 Run ``python benchmarks/smoother_speed.py [--samples N] [--repeats K]``.
 
@@ -10,7 +10,6 @@ at 285.714 Hz. Printed, best of ``--repeats`` with compilation excluded, samples
 - ``Smoother.run`` (``robust``'s forward pass included);
 - ``vqf.offlineVQF`` (C++, VQF's offline estimate: a forward and a backward pass) on the
   same samples in the same run: the ratio column is against it;
-- ``RobustOffline.run`` (the blend of passes the smoother replaces);
 
 then the smoother's time split into ``robust``'s forward pass, the Kalman filter forward
 and the Rauch-Tung-Striebel pass backward (each timed inside one run).
@@ -26,7 +25,6 @@ import numpy as np
 from margtrack.bench.speed import measure, print_table, speed_input
 from margtrack.methods import smoother as smoother_module
 from margtrack.methods.robust import Robust
-from margtrack.methods.robust_offline import RobustOffline
 from margtrack.methods.smoother import Smoother
 
 RATE_HZ = 285.714
@@ -77,9 +75,7 @@ def main() -> None:
         gyr=gyr, acc=acc, mag=mag, t=t), n, repeats=args.repeats)
     reference = measure("vqf offlineVQF (C++)", lambda: vqf.offlineVQF(
         gyr, acc, mag, 1.0 / RATE_HZ), n, repeats=args.repeats)
-    blend = measure("margtrack RobustOffline.run", lambda: RobustOffline().run(
-        gyr=gyr, acc=acc, mag=mag, t=t), n, repeats=args.repeats)
-    print_table([(smoother, ""), (reference, ""), (blend, "")], reference, "offline vqf")
+    print_table([(smoother, ""), (reference, "")], reference, "offline vqf")
     parts = split(gyr, acc, mag, t)
     print("\nthe smoother's time, one run: " + ", ".join(
         f"{name} {parts[name]:.3f} s" for name in ("robust", "forward", "backward", "total")))

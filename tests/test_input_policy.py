@@ -17,7 +17,7 @@ from margtrack import methods
 from margtrack.estimator import Flag
 
 ALL = methods.available()
-#: methods with update(); robust-offline refuses it (tests/methods/test_robust_offline.py)
+#: methods with update(); smoother refuses it (tests/methods/test_smoother.py)
 ONLINE = [n for n in ALL if not getattr(methods.get(n), "offline", False)]
 RECURSIVE = [m for m in ALL if methods.get(m).uses_gyr]
 NINE_D = [m for m in RECURSIVE if m != "gyro"]

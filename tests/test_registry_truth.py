@@ -67,7 +67,6 @@ BOUNDS: dict[str, Bound] = {
     "newton": Bound(EXACT, 7.0, 6.5, 3.5, None),  # 1.5e-14 | 4.33 3.90 1.92
     "quest": Bound(EXACT, 7.0, 6.5, 3.5, None),  # 9.1e-14 | 4.33 3.90 1.92
     "robust": Bound(EXACT, 6.5, 6.0, 2.0, 2.0),  # 1.1e-13 | 3.81 3.66 1.07 | 1.07
-    "robust-offline": Bound(EXACT, 4.0, 3.7, 1.4, 1.4),  # 1.4e-10 | 1.97 1.85 0.69 | 0.69
     "smoother": Bound(EXACT, 2.5, 2.5, 1.0, 1.0),  # 4.8e-13 | 1.45 1.36 0.53 | 0.53
     "triad": Bound(EXACT, 7.5, 6.5, 3.5, None),  # 1.6e-14 | 4.45 3.91 2.12
 }

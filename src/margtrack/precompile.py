@@ -65,7 +65,7 @@ def precompile(
     if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0") or not chosen:
         return {}
     # a method and each of its compile_variants is a unit; units on the same kernels
-    # (bachmann and bachmann-accmag, robust and robust-offline) go to one process, one after
+    # (bachmann and bachmann-accmag, robust and smoother) go to one process, one after
     # the other: the second loads what the first compiled
     groups: dict[str, list[Unit]] = {}
     pending = dict.fromkeys(chosen, 0)  # a method's units not finished yet

@@ -99,8 +99,6 @@ RECORDS: tuple[MethodRecord, ...] = (
         "mag_new_reference_s": GridParam(
             (10.0, 20.0, 40.0), "when a new steady field is trusted: fitted to the magnet trials"),
     }),
-    MethodRecord("robust-offline", "margtrack.methods.robust_offline", "RobustOffline",
-                 online=False),
     MethodRecord("smoother", "margtrack.methods.smoother", "Smoother", online=False, grid={
         "motion_walk_deg_s_sqrt_hz": GridParam(
             (0.3, 1.0, 3.0), "the orientation's walk in motion: BROAD is flat over 0.3-3"),
@@ -109,6 +107,16 @@ RECORDS: tuple[MethodRecord, ...] = (
 )
 
 _BY_NAME: Mapping[str, MethodRecord] = types.MappingProxyType({r.name: r for r in RECORDS})
+
+#: methods that were removed: name -> (what replaces it, why), for the error that says so
+REPLACED: Mapping[str, tuple[str, str]] = types.MappingProxyType({
+    "robust-offline": (
+        "smoother",
+        "a Kalman filter forwards and a Rauch-Tung-Striebel pass backwards, with robust's "
+        "parameters and detectors; as accurate on BROAD, better on simulated disturbances "
+        "and after gaps",
+    ),
+})
 
 #: The recommended method; ``"default"`` resolves to it: the best measured on BROAD so far.
 #: Mean total RMSE over the 16 trials with default parameters: robust 2.03 deg (VQF 2.76
@@ -127,6 +135,11 @@ def record(name: str) -> MethodRecord:
     try:
         return _BY_NAME[key]
     except KeyError:
+        if name in REPLACED:
+            new, why = REPLACED[name]
+            raise ValueError(
+                f"method {name!r} was replaced by {new!r} ({why}); use {new!r}"
+            ) from None
         raise ValueError(
             f"unknown method {name!r}; available: {', '.join(['default', *available()])}"
         ) from None

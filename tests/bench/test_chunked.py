@@ -243,11 +243,11 @@ def test_broad_trial_figures_equal_the_whole_run(broad_folder, tmp_path) -> None
 
 
 def test_an_offline_method_runs_the_whole_file_whatever_the_chunk_size(rec, files, tmp_path):
-    # robust-offline smooths over the whole recording: chunks would change (and refuse) it
-    whole = methods.create("robust-offline").run(rec)
+    # the smoother smooths over the whole recording: chunks would change (and refuse) it
+    whole = methods.create("smoother").run(rec)
     out = tmp_path / "offline.h5"
     seen: list[tuple[int, int]] = []
-    result = run_file(files["h5"], out, "robust-offline", chunk_samples=611,
+    result = run_file(files["h5"], out, "smoother", chunk_samples=611,
                       progress=lambda done, total: seen.append((done, total)))
     np.testing.assert_array_equal(io.read_estimate(out).quat, whole.quat)
     assert seen == [(rec.n_samples, rec.n_samples)]

@@ -13,7 +13,7 @@ from margtrack.methods.gyro import GyroIntegration
 from margtrack.recording import Recording
 from margtrack.units import UnitError
 
-#: methods with update(); robust-offline refuses it (tests/methods/test_robust_offline.py)
+#: methods with update(); smoother refuses it (tests/methods/test_smoother.py)
 ONLINE = [r.name for r in methods.RECORDS if r.online]
 
 pytestmark = pytest.mark.kernel

@@ -22,7 +22,7 @@ from margtrack.estimator.jit import njit
 from margtrack.estimator.skeleton import K_READY, K_SCREEN, N_CONTRACT, N_SCOEF
 
 #: every online method with lockstep blocks (``contract.entry_points``) that runs without a
-#: magnetometer too (robust-offline and bachmann-accmag run on those of robust and bachmann)
+#: magnetometer too (smoother and bachmann-accmag run on those of robust and bachmann)
 LOCKSTEP = [r.name for r in methods.RECORDS
             if r.online and getattr(methods.get(r.name), "mag_optional", False)
             and getattr(getattr(methods.get(r.name), "kernel", None), "lanes", None) is not None]

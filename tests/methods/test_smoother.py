@@ -266,3 +266,21 @@ def test_a_restart_starts_from_robusts_settled_window_carried_back_by_the_gyro()
     assert np.degrees(quat.angle_between(got[100], rec.quat_true[100])) < 0.05
     # no window (sample 0): robust's own start row
     assert np.array_equal(got[0], q_rob[0])
+
+
+def test_the_live_engine_refuses_it_before_the_first_sample():
+    from margtrack.live.engine import Engine
+    from margtrack.live.replay import ReplaySource
+
+    rec = _static_with_bias(1.0)
+    source = ReplaySource(rec.t, rec.gyr[None], rec.acc[None], rec.mag[None], ["s0"])
+    with pytest.raises(ValueError, match=r"'smoother' is offline.*'robust'"):
+        Engine(source.info, "smoother")
+
+
+def test_the_replaced_robust_offline_names_the_smoother():
+    # the blend of robust passes it replaces lost on simulated disturbances and after gaps
+    # (docs/methods.md); a script that still names it is told what to use, not run
+    with pytest.raises(ValueError, match=r"'robust-offline' was replaced by 'smoother'.*use"):
+        methods.create("robust-offline")
+

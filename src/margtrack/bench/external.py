@@ -9,7 +9,7 @@ and imported on first use:
 - ``vqf``: VQF (Laidig & Seel 2023), C++ batch ``VQF.updateBatch``, default parameters;
   its 9-D output is ENU with margtrack's meaning (docs/conventions.md).
 - ``vqf-offline``: VQF's offline (acausal) variant ``vqf.offlineVQF``, default parameters,
-  the peer of ``robust-offline``; same output convention as ``vqf``.
+  the peer of ``smoother``; same output convention as ``vqf``.
 - ``imufusion``: x-io's Fusion, per-sample C updates from Python, ENU convention,
   default gain; it takes deg/s and g.
 - ``madgwick``: ``ahrs.filters.Madgwick`` (pure Python), MARG, output in NWU, rotated to

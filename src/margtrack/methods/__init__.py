@@ -34,7 +34,6 @@ _WHERE = {
     "MarinsEkf": "ekf",
     "MarinsEkfParams": "ekf",
     "Robust": "robust",
-    "RobustOffline": "robust_offline",
     "Smoother": "smoother",
     "RobustParams": "robust",
 }

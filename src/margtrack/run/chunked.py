@@ -206,7 +206,7 @@ def run_file(
     read_kwargs : keywords for the reader (``gyr_unit``, ``acc_unit``, ``mag_unit``,
         ``time_unit``; more for CSV, as :func:`margtrack.io.read`).
     chunk_samples : samples per chunk (bounds the memory: about 0.3 KB per sample); an
-        offline method (``robust-offline``) reads and runs the whole recording at once.
+        offline method (``smoother``) reads and runs the whole recording at once.
     force : replace an existing output (never the input).
     progress : ``progress(samples_done, samples_total)`` after each chunk.
     on_warning : called with each warning sentence as it is found (also in the summary).

@@ -44,7 +44,6 @@ from margtrack.estimator import param
 from margtrack.estimator.estimate import Estimate
 from margtrack.estimator.flags import Flag
 from margtrack.methods.robust import Robust, RobustParams
-from margtrack.methods.robust_offline import RobustOffline
 from margtrack.methods.smoother import kernel
 
 Array = NDArray[np.float64]
@@ -107,14 +106,31 @@ class SmootherParams(RobustParams):
         return c
 
 
-class Smoother(RobustOffline):
+class Smoother(Robust):
     """Fixed-interval smoother over a whole recording (``--method smoother``); see the
-    module docstring. ``update`` refuses (offline), ``run`` takes one whole recording."""
+    module docstring. ``run`` takes one whole recording from a fresh state (a second
+    ``run`` without ``reset()`` raises: it cannot continue a smoothed run); afterwards
+    ``state`` is the forward ``robust`` pass's. ``update`` raises: the method is offline."""
 
     name = "smoother"
     params_type = SmootherParams
+    #: needs the whole series: ``update`` refuses, ``run`` is not resumable
     offline: ClassVar[bool] = True
     outputs_layout = (("gyr_bias_rad_s", 3), ("gyr_bias_sd_rad_s", 3))
+
+    def update(
+        self,
+        gyr: ArrayLike | None,
+        acc: ArrayLike,
+        mag: ArrayLike | None = None,
+        dt: float | None = None,
+    ) -> Array:
+        """Refused: the smoother is offline (module docstring)."""
+        raise TypeError(
+            "smoother is an offline method: each estimate uses samples after it, so it needs "
+            "the whole recording at once (run()); for sample-by-sample (live) updates use "
+            "method 'robust'"
+        )
 
     def _run_arrays(
         self,
@@ -128,7 +144,9 @@ class Smoother(RobustOffline):
         if self._state is not None:
             raise ValueError(
                 "smoother smooths one whole recording per run and cannot continue from an "
-                "earlier run's state; call reset() before the next recording"
+                "earlier run's state (a recording run in pieces would be smoothed piece by "
+                "piece); call reset() before the next recording, and run a recording in one "
+                "piece (or use method 'robust', which continues exactly)"
             )
         x = self._validated(gyr, acc, mag, t, check_units=check_units)
         params: SmootherParams = self._params
