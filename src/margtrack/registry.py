@@ -109,7 +109,7 @@ RECORDS: tuple[MethodRecord, ...] = (
 _BY_NAME: Mapping[str, MethodRecord] = types.MappingProxyType({r.name: r for r in RECORDS})
 
 #: methods that were removed: name -> (what replaces it, why), for the error that says so
-REPLACED: Mapping[str, tuple[str, str]] = types.MappingProxyType({
+_REPLACED: Mapping[str, tuple[str, str]] = types.MappingProxyType({
     "robust-offline": (
         "smoother",
         "a Kalman filter forwards and a Rauch-Tung-Striebel pass backwards, with robust's "
@@ -135,8 +135,8 @@ def record(name: str) -> MethodRecord:
     try:
         return _BY_NAME[key]
     except KeyError:
-        if name in REPLACED:
-            new, why = REPLACED[name]
+        if name in _REPLACED:
+            new, why = _REPLACED[name]
             raise ValueError(
                 f"method {name!r} was replaced by {new!r} ({why}); use {new!r}"
             ) from None
