@@ -1,6 +1,6 @@
 """The offline estimators on simulated disturbances stronger than the shared BROAD trials'.
 
-Run ``python benchmarks/smoother_disturbances.py [--seeds 3]``.
+Run ``python benchmarks/smoother_disturbances.py [--seeds 3] [--param tau_acc_s=4.5 ...]``.
 
 60 s of ``sim.random_motion`` (up to 200 deg/s, 1 Hz band) seen by the consumer-MEMS error
 presets, ENU, one seed per repetition, with one disturbance at a time at several
@@ -8,7 +8,8 @@ strengths: linear acceleration (translation of peak amplitude 0.02-0.5 m in the 
 band: up to several g at 0.5 m), a magnet passing (a 10 s Hann bump of 20-200 µT along
 east, a 50 µT earth field), and a gyro bias of 0.5-2 deg/s. Printed per case: total
 RMSE (deg) of ``robust``, ``smoother`` and, when vqf is installed,
-VQF and offline VQF, mean over the seeds.
+VQF and offline VQF, mean over the seeds. ``--param name=value`` (repeatable) adds a
+column: the smoother with those parameters.
 """
 
 from __future__ import annotations
@@ -46,8 +47,13 @@ def _cases(seed: int):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--param", "-p", action="append", default=[],
+                        help="name=value: a column of the smoother with these parameters")
     args = parser.parse_args()
     methods = {name: registry.create(name) for name in METHODS}
+    if args.param:
+        params = registry.parse_params_items(args.param)
+        methods["smoother " + ",".join(args.param)] = registry.create("smoother", params)
     if importlib.util.find_spec("vqf") is not None:
         from margtrack.bench import external
 
@@ -61,9 +67,10 @@ def main() -> None:
                 est = method.run(rec)
                 err = score(rec, est.quat, est.frame).errors.total_rmse_deg
                 table.setdefault(case, {}).setdefault(name, []).append(err)
-    print(f"{'case':24s}" + "".join(f"{n:>15s}" for n in methods))
+    width = max(15, *(len(n) + 2 for n in methods))
+    print(f"{'case':24s}" + "".join(f"{n:>{width}s}" for n in methods))
     for case, row in table.items():
-        print(f"{case:24s}" + "".join(f"{np.mean(row[n]):15.2f}" for n in methods))
+        print(f"{case:24s}" + "".join(f"{np.mean(row[n]):{width}.2f}" for n in methods))
 
 
 if __name__ == "__main__":
