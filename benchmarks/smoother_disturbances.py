@@ -5,7 +5,9 @@ Run ``python benchmarks/smoother_disturbances.py [--seeds 3] [--param tau_acc_s=
 60 s of ``sim.random_motion`` (up to 200 deg/s, 1 Hz band) seen by the consumer-MEMS error
 presets, ENU, one seed per repetition, with one disturbance at a time at several
 strengths: linear acceleration (translation of peak amplitude 0.02-0.5 m in the same
-band: up to several g at 0.5 m), a magnet passing (a 10 s Hann bump of 20-200 µT along
+band: up to several g at 0.5 m), a limb swinging at 1 Hz about a joint (30 deg with the
+sensor 0.4 m from it, 60 deg at 0.6 m: an acceleration that turns with the sensor), a
+magnet passing (a 10 s Hann bump of 20-200 µT along
 east, a 50 µT earth field), and a gyro bias of 0.5-2 deg/s. Printed per case: total
 RMSE (deg) of ``robust``, ``smoother`` and, when vqf is installed,
 VQF and offline VQF, mean over the seeds. ``--param name=value`` (repeatable) adds a
@@ -34,6 +36,12 @@ def _cases(seed: int):
                                              bias=np.radians([0.2, -0.1, 0.15]))}
     for amplitude in (0.02, 0.1, 0.5):
         yield f"translation {amplitude} m", sim.simulate(motion(amplitude), seed=seed, **errors)
+    for amplitude_deg, length_m in ((30.0, 0.4), (60.0, 0.6)):
+        # a limb's sensor: its linear acceleration turns with the limb (not zero-mean in
+        # the body frame as random translation is)
+        swing = sim.limb_swing(60.0, 100.0, amplitude_deg, 1.0, length_m)
+        yield (f"limb swing {amplitude_deg:g} deg {length_m:g} m",
+               sim.simulate(swing, seed=seed, **errors))
     for peak in (20.0, 60.0, 200.0):
         pass_ = sim.magnet_pass(30.0, 10.0, peak, (1.0, 0.0, 0.0))
         yield f"magnet pass {peak:g} uT", sim.simulate(motion(), seed=seed,

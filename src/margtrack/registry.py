@@ -102,6 +102,8 @@ RECORDS: tuple[MethodRecord, ...] = (
     MethodRecord("smoother", "margtrack.methods.smoother", "Smoother", online=False, grid={
         "motion_walk_deg_s_sqrt_hz": GridParam(
             (0.3, 1.0, 3.0), "the orientation's walk in motion: BROAD is flat over 0.3-3"),
+        "acc_lowpass_hz": GridParam(
+            (0.0, 0.5, 1.0), "the accelerometer's low-pass before the filter: none or 0.5-1 Hz"),
     }),
     MethodRecord("triad", "margtrack.single_frame.triad", "Triad"),
 )

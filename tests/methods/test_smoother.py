@@ -284,3 +284,66 @@ def test_the_replaced_robust_offline_names_the_smoother():
     with pytest.raises(ValueError, match=r"'robust-offline' was replaced by 'smoother'.*use"):
         methods.create("robust-offline")
 
+
+
+# --- the accelerometer's low-pass in the level frame -------------------------------------
+
+
+def test_the_low_pass_is_butterworth_forwards_then_backwards_in_the_level_frame():
+    from scipy.signal import lfilter, lfilter_zi
+
+    from margtrack.methods.robust.gains import butterworth_coefficients
+
+    rec = sim.simulate(sim.random_motion(10.0, 100.0, seed=3, translation_m=0.2), seed=1)
+    b0, a1, a2 = butterworth_coefficients(0.01, np.sqrt(2.0) / (2.0 * np.pi * 0.5))
+    b, a = [b0, 2.0 * b0, b0], [1.0, a1, a2]
+    use = np.ones(rec.t.size, dtype=bool)
+    restart = np.zeros(rec.t.size, dtype=bool)
+    restart[600] = True  # two stretches, each filtered alone
+
+    def oracle(q, acc):
+        level = quat.rotate(q, acc)
+        fwd = lfilter(b, a, level, axis=0, zi=np.outer(lfilter_zi(b, a), level[0]))[0]
+        back = lfilter(b, a, fwd[::-1], axis=0, zi=np.outer(lfilter_zi(b, a), fwd[-1]))[0]
+        return quat.rotate_inverse(q, back[::-1])
+
+    got = np.empty_like(rec.acc)
+    kernel.lowpassed_acc(rec.quat_true, rec.acc, use, restart, b0, a1, a2, got)
+    for part in (slice(0, 600), slice(600, None)):
+        np.testing.assert_allclose(got[part], oracle(rec.quat_true[part], rec.acc[part]),
+                                   atol=1e-9)
+    # gravity alone, carried by the true orientation, comes through whole
+    gravity = quat.rotate_inverse(rec.quat_true, [0.0, 0.0, 9.81])
+    kernel.lowpassed_acc(rec.quat_true, gravity, use, restart, b0, a1, a2, got)
+    np.testing.assert_allclose(got, gravity, atol=1e-9)
+    # a sample not used enters as the one before it: a nan there changes nothing else
+    acc = rec.acc.copy()
+    acc[300] = np.nan
+    use[300] = False
+    held = acc.copy()
+    held[300] = quat.rotate_inverse(rec.quat_true[300], quat.rotate(rec.quat_true[299],
+                                                                      rec.acc[299]))
+    kernel.lowpassed_acc(rec.quat_true, acc, use, restart, b0, a1, a2, got)
+    assert np.all(np.isfinite(got))
+    np.testing.assert_allclose(got[:600], oracle(rec.quat_true[:600], held[:600]), atol=1e-9)
+
+
+def test_a_swinging_limbs_acceleration_is_kept_out_of_the_inclination():
+    # a sensor 0.6 m down a limb swinging 60 deg at 1 Hz: its linear acceleration turns with
+    # it, and weighed sample by sample it leaks into the inclination (and through the bias
+    # into the drift); low-passed in robust's level frame first it does not. Measured over
+    # these 30 s: 0.99 deg against 2.63 without the low-pass
+    rec = sim.simulate(sim.limb_swing(30.0, 100.0, 60.0, 1.0, 0.6), seed=0,
+                       gyr_errors=sim.SensorErrors(noise_density=np.radians(0.01),
+                                                   bias=np.radians([0.2, -0.1, 0.15])))
+    low = Smoother().run(rec)
+    raw = Smoother(acc_lowpass_hz=0.0).run(rec)
+    incl = [np.degrees(np.sqrt(np.mean(error_series(e.quat, rec.quat_true).inclination_rad**2)))
+            for e in (low, raw)]
+    assert incl[0] < 0.5 * incl[1], incl
+
+
+def test_a_low_pass_at_or_above_half_the_sample_rate_is_refused_with_the_fix():
+    rec = _static_with_bias(2.0)  # 100 Hz
+    with pytest.raises(ValueError, match=r"acc_lowpass_hz=60 Hz .*half the sample rate.*0 for"):
+        Smoother(acc_lowpass_hz=60.0).run(rec)

@@ -13,7 +13,7 @@ from margtrack.methods.robust import Robust
 from margtrack.methods.smoother import Smoother
 
 
-@pytest.mark.parametrize("trial", ["15_", "30_"])
+@pytest.mark.parametrize("trial", ["15_", "21_"])
 def test_two_seconds_cut_from_a_broad_trial_cost_it_little(broad_folder, trial):
     rec = read_broad(next(broad_folder.glob(f"{trial}*.hdf5")))
     t_mid = float(np.median(rec.t[rec.movement]))
@@ -23,7 +23,7 @@ def test_two_seconds_cut_from_a_broad_trial_cost_it_little(broad_folder, trial):
                     frame=rec.frame)
     clean = evaluate(Smoother(), rec).errors.total_rmse_deg
     gap = evaluate(Smoother(), cut).errors.total_rmse_deg
-    # measured: fast translation 3.24 -> 2.48 deg, a stationary magnet 1.63 -> 2.03 deg
-    # (robust 2.03 -> 5.79 and 1.64 -> 5.27: its restart's first second in fast motion)
+    # measured: fast translation 2.17 -> 1.81 deg, fast combined motion 2.09 -> 2.15 deg
+    # (robust 2.03 -> 5.79 and 3.35 -> 4.79: its restart's first second in fast motion)
     assert gap < 1.25 * clean, (clean, gap)
     assert gap < 0.6 * evaluate(Robust(), cut).errors.total_rmse_deg

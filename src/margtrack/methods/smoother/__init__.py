@@ -44,6 +44,7 @@ from margtrack.estimator import param
 from margtrack.estimator.estimate import Estimate
 from margtrack.estimator.flags import Flag
 from margtrack.methods.robust import Robust, RobustParams
+from margtrack.methods.robust.gains import butterworth_coefficients
 from margtrack.methods.smoother import kernel
 
 Array = NDArray[np.float64]
@@ -80,6 +81,13 @@ class SmootherParams(RobustParams):
     )
     heading_sigma_init_deg: float = param(
         30.0, unit="deg", gt=0, help="standard deviation of a (re)start's heading"
+    )
+    acc_lowpass_hz: float = param(
+        0.5,
+        unit="Hz",
+        ge=0,
+        help="cut-off of the zero-phase low-pass of the accelerometer in robust's level "
+        "frame, before the filter (0: none)",
     )
 
     def smoother_coefficients(self, dt_s: float, gravity_m_s2: float) -> Array:
@@ -159,6 +167,7 @@ class Smoother(Robust):
         norms = np.linalg.norm(x.acc[rest], axis=-1)
         norms = norms[np.isfinite(norms)]
         coefs = params.smoother_coefficients(dt_s, float(np.median(norms)) if norms.size else G)
+        lowpass = _lowpass_coefficients(params.acc_lowpass_hz, dt_s)
         quat = np.empty((n_sensors, n, 4))
         bias = np.empty((n_sensors, n, 3))
         bias_var = np.empty((n_sensors, n, 3))
@@ -172,12 +181,20 @@ class Smoother(Robust):
             kernel.measurements(flags, x.gyr[s], x.acc[s], None if x.mag is None else x.mag[s],
                                 fwd.outputs["mag_offset_ut"][s], _NO_GYR, _NO_ACC, _NO_MAG,
                                 int(Flag.REST), use_gyr, use_acc, use_mag, at_rest, mag_s)
+            initialising = (flags & int(Flag.INITIALISING)) != 0
+            acc_s = x.acc[s]
+            if lowpass is not None:
+                acc_s = np.empty_like(acc_s)
+                kernel.lowpassed_acc(fwd.outputs["quat6d"][s], x.acc[s], use_acc & ~initialising,
+                                     restart, *lowpass, acc_s)
+                # a restart's window: robust's orientation still forming, the samples as read
+                acc_s[initialising] = x.acc[s][initialising]
             q_start = _start_orientations(
-                x.t, x.gyr[s], use_gyr, restart, (flags & int(Flag.INITIALISING)) != 0,
-                fwd.quat[s], fwd.outputs["gyr_bias_rad_s"][s])
+                x.t, x.gyr[s], use_gyr, restart, initialising, fwd.quat[s],
+                fwd.outputs["gyr_bias_rad_s"][s])
             b0 = np.zeros(3)
             store = _Store(n)
-            kernel.forward(x.t, x.gyr[s], x.acc[s], mag_s, use_gyr, use_acc, use_mag, at_rest,
+            kernel.forward(x.t, x.gyr[s], acc_s, mag_s, use_gyr, use_acc, use_mag, at_rest,
                            restart, q_start, b0, coefs, *store.forward_arrays())
             kernel.backward(x.t, restart, at_rest, coefs, *store.forward_arrays(), quat[s], bias[s],
                             bias_var[s])
@@ -197,6 +214,21 @@ class Smoother(Robust):
             outputs=outputs,
             flags=fwd.flags,
         )
+
+
+def _lowpass_coefficients(cutoff_hz: float, dt_s: float) -> tuple[float, float, float] | None:
+    """(b0, a1, a2) of the accelerometer's Butterworth low-pass at ``cutoff_hz`` for the
+    sample interval ``dt_s`` (``robust``'s low-pass, ``gains.butterworth_coefficients``);
+    None when off (0). Raises ``ValueError`` at or above the Nyquist frequency."""
+    if cutoff_hz <= 0.0:
+        return None
+    if cutoff_hz >= 0.5 / dt_s:
+        raise ValueError(
+            f"acc_lowpass_hz={cutoff_hz:g} Hz is at or above half the sample rate "
+            f"({0.5 / dt_s:g} Hz); give a lower cut-off, or 0 for none"
+        )
+    tau_s = math.sqrt(2.0) / (2.0 * math.pi * cutoff_hz)  # the cut-off's time constant
+    return butterworth_coefficients(dt_s, tau_s)
 
 
 def _start_orientations(

@@ -36,6 +36,8 @@ import numpy as np
 
 from margtrack.estimator.jit import njit
 from margtrack.estimator.quat_kernel import mul
+from margtrack.estimator.triad_kernel import rotate
+from margtrack.methods.robust.gains import _bw_hold, _bw_step
 
 #: coefficient slots
 (C_Q_ANGLE, C_Q_BIAS, C_R_ACC, C_R_MAG, C_R_REST, C_P0_INCL, C_P0_HEAD, C_P0_BIAS, C_UP,
@@ -220,6 +222,54 @@ def measurements(flags, gyr, acc, mag, mag_offset, no_gyr, no_acc, no_mag, rest,
                 mag_out[k, a] = mag[k, a] - o if math.isfinite(o) else mag[k, a]
                 ok = ok and math.isfinite(mag_out[k, a])
         use_mag[k] = ok
+
+
+@njit(cache=True)
+def lowpassed_acc(q6, acc, use_acc, restart, b0, a1, a2, out):
+    """``out`` (N, 3) ← the accelerometer (N, 3) low-passed with zero phase in the level
+    frame of ``robust``'s 6-D orientation ``q6`` (N, 4) and carried back into the body.
+
+    Gravity is fixed in that frame, so the low-pass (the second-order Butterworth
+    ``(b0, a1, a2)``, forwards and then backwards) keeps it whole while it cuts the linear
+    acceleration above its cut-off; ``q6``'s own slow errors are undone by carrying back
+    with the same ``q6``. Each stretch between restarts (``restart``: ``q6`` jumps there)
+    is filtered alone, each pass starting in the steady state of its first sample; a
+    sample not used (``use_acc`` False) enters as the last used one (before the first used
+    one: that one)."""
+    n = acc.shape[0]
+    start = 0
+    while start < n:
+        end = start + 1
+        while end < n and not restart[end]:
+            end += 1
+        first = start
+        while first < end - 1 and not use_acc[first]:
+            first += 1
+        x0 = x1 = x2 = 0.0
+        if use_acc[first]:
+            x0, x1, x2 = rotate(q6[first, 0], q6[first, 1], q6[first, 2], q6[first, 3],
+                                acc[first, 0], acc[first, 1], acc[first, 2])
+        s10, s20 = _bw_hold(b0, a1, a2, x0)
+        s11, s21 = _bw_hold(b0, a1, a2, x1)
+        s12, s22 = _bw_hold(b0, a1, a2, x2)
+        for k in range(start, end):  # into the level frame, forwards (into ``out``)
+            if use_acc[k]:
+                x0, x1, x2 = rotate(q6[k, 0], q6[k, 1], q6[k, 2], q6[k, 3], acc[k, 0],
+                                    acc[k, 1], acc[k, 2])
+            out[k, 0], s10, s20 = _bw_step(b0, a1, a2, s10, s20, x0)
+            out[k, 1], s11, s21 = _bw_step(b0, a1, a2, s11, s21, x1)
+            out[k, 2], s12, s22 = _bw_step(b0, a1, a2, s12, s22, x2)
+        last = end - 1
+        s10, s20 = _bw_hold(b0, a1, a2, out[last, 0])
+        s11, s21 = _bw_hold(b0, a1, a2, out[last, 1])
+        s12, s22 = _bw_hold(b0, a1, a2, out[last, 2])
+        for k in range(last, start - 1, -1):  # backwards, and back into the body
+            y0, s10, s20 = _bw_step(b0, a1, a2, s10, s20, out[k, 0])
+            y1, s11, s21 = _bw_step(b0, a1, a2, s11, s21, out[k, 1])
+            y2, s12, s22 = _bw_step(b0, a1, a2, s12, s22, out[k, 2])
+            out[k, 0], out[k, 1], out[k, 2] = rotate(q6[k, 0], -q6[k, 1], -q6[k, 2],
+                                                     -q6[k, 3], y0, y1, y2)
+        start = end
 
 
 @njit(cache=True)
