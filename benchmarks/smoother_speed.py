@@ -11,7 +11,8 @@ at 285.714 Hz. Printed, best of ``--repeats`` with compilation excluded, samples
 - ``vqf.offlineVQF`` (C++, VQF's offline estimate: a forward and a backward pass) on the
   same samples in the same run: the ratio column is against it;
 
-then the smoother's time split into ``robust``'s forward pass, the Kalman filter forward
+then the smoother's time split into ``robust``'s forward pass, the accelerometer's
+low-pass, the Kalman filter forward
 and the Rauch-Tung-Striebel pass backward (each timed inside one run).
 """
 
@@ -31,12 +32,13 @@ RATE_HZ = 285.714
 
 
 def split(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, t: np.ndarray) -> dict[str, float]:
-    """Seconds of one ``Smoother.run`` spent in ``robust``, the forward filter and the
-    backward pass (the module's functions wrapped with a timer for this call only)."""
+    """Seconds of one ``Smoother.run`` spent in ``robust``, the accelerometer's low-pass,
+    the forward filter and the backward pass (the module's functions wrapped with a timer
+    for this call only)."""
     seconds: dict[str, float] = {}
     kernel = smoother_module.kernel
     originals = {"forward": kernel.forward, "backward": kernel.backward,
-                 "robust": Robust._run_arrays}
+                 "low-pass": kernel.lowpassed_acc, "robust": Robust._run_arrays}
 
     def timed(name, func):
         def call(*args, **kwargs):
@@ -48,6 +50,7 @@ def split(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, t: np.ndarray) -> d
 
     kernel.forward = timed("forward", originals["forward"])
     kernel.backward = timed("backward", originals["backward"])
+    kernel.lowpassed_acc = timed("low-pass", originals["low-pass"])
     Robust._run_arrays = timed("robust", originals["robust"])
     try:
         start = time.perf_counter()
@@ -55,6 +58,7 @@ def split(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray, t: np.ndarray) -> d
         seconds["total"] = time.perf_counter() - start
     finally:
         kernel.forward, kernel.backward = originals["forward"], originals["backward"]
+        kernel.lowpassed_acc = originals["low-pass"]
         Robust._run_arrays = originals["robust"]
     return seconds
 
@@ -78,7 +82,8 @@ def main() -> None:
     print_table([(smoother, ""), (reference, "")], reference, "offline vqf")
     parts = split(gyr, acc, mag, t)
     print("\nthe smoother's time, one run: " + ", ".join(
-        f"{name} {parts[name]:.3f} s" for name in ("robust", "forward", "backward", "total")))
+        f"{name} {parts[name]:.3f} s"
+        for name in ("robust", "low-pass", "forward", "backward", "total")))
 
 
 if __name__ == "__main__":

@@ -8,9 +8,13 @@ bias of the start known from the data after it. The scheme (kernel module docstr
 1. ``robust`` forward, for what it detects: rest (``REST``, where the gyro measures its
    bias), rejected field disturbances (``MAG_DISTURBED``, the field not used), the input
    screening's flags, and the orientation each (re)start begins from;
-2. an error-state Kalman filter over the orientation error in the earth frame and the gyro
+2. the accelerometer low-passed with zero phase (``acc_lowpass_hz``) in the level frame of
+   ``robust``'s 6-D orientation, where gravity is fixed, and carried back into the body: a
+   limb's acceleration, which turns with the sensor, does not leak into the inclination
+   (``kernel.lowpassed_acc``; docs/methods.md);
+3. an error-state Kalman filter over the orientation error in the earth frame and the gyro
    bias, forward, storing its filtered and predicted states;
-3. the Rauch-Tung-Striebel backward pass over them.
+4. the Rauch-Tung-Striebel backward pass over them.
 
 The filter's noise follows from ``robust``'s parameters, so both have the same time
 constants: a random walk of the orientation of density ``q_θ`` (``motion_walk_deg_s_sqrt_hz``)
